@@ -1,0 +1,7 @@
+"""``python -m hera`` runs the command line."""
+
+import sys
+
+from hera.cli import main
+
+sys.exit(main())

@@ -1,0 +1,191 @@
+"""The replicated args store: calibrations and shared arguments on every node.
+
+The original kept a table replicated by multicall, lost when the whole cluster stopped. Ours:
+
+- ``put(key, value)`` on any node publishes on ``hera/<cluster>/args/<key>``; every node
+  subscribes and keeps the entry with the latest ``(stamp, origin)`` (last writer wins by
+  wall-clock timestamp in ns, ties broken by origin node name, so all replicas agree);
+- every node answers queries on ``hera/<cluster>/args/**`` with all entries it holds, and a
+  starting node asks all live peers before it starts its measures (:meth:`recover`);
+- each node persists its entries to ``<state_dir>/args.msgpack`` (written atomically), so a
+  restart of the whole cluster keeps them.
+
+Values are anything msgpack carries (numbers, strings, lists, maps).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import msgpack
+
+from hera.keys import Keys, check_chunk
+
+log = logging.getLogger("hera.args")
+
+
+class ArgsStore:
+    """Last-writer-wins replicated key/value store (local only when ``session`` is None)."""
+
+    FILE = "args.msgpack"
+
+    def __init__(
+        self,
+        node: str,
+        session: Any = None,
+        keys: Keys | None = None,
+        state_dir: str | os.PathLike | None = None,
+    ) -> None:
+        self.node = node
+        self._session = session
+        self._keys = keys
+        self._path = Path(state_dir) / self.FILE if state_dir is not None else None
+        self._lock = threading.Lock()
+        self._entries: dict[str, tuple[int, str, Any]] = {}
+        self.rejected = 0
+        self._sub = self._queryable = None
+        if self._path is not None:
+            self._load()
+        if session is not None:
+            if keys is None:
+                raise ValueError("ArgsStore needs keys when it has a session")
+            self._sub = session.declare_subscriber(keys.args("**"), self._on_sample)
+            self._queryable = session.declare_queryable(
+                keys.args("**"), self._on_query, complete=True
+            )
+
+    # -- reading -------------------------------------------------------------------------
+    def get(self, key: str, default: Any = None) -> Any:
+        """The current value of ``key``, or ``default``."""
+        with self._lock:
+            entry = self._entries.get(key)
+        return default if entry is None else entry[2]
+
+    def items(self) -> dict[str, Any]:
+        """A copy of every key and value."""
+        with self._lock:
+            return {k: e[2] for k, e in self._entries.items()}
+
+    def __contains__(self, key: str) -> bool:
+        with self._lock:
+            return key in self._entries
+
+    # -- writing -------------------------------------------------------------------------
+    def put(self, key: str, value: Any) -> None:
+        """Set ``key`` on every node (last writer wins); raises ValueError on a bad key or a
+        value msgpack cannot carry."""
+        for chunk in key.split("/"):
+            check_chunk(chunk, "args key element")
+        stamp = time.time_ns()
+        payload = _pack(stamp, self.node, value)  # fails early on unpackable values
+        self._merge(key, stamp, self.node, value)
+        if self._session is not None:
+            self._session.put(self._keys.args(key), payload)
+
+    def recover(self, timeout: float = 1.0) -> int:
+        """Ask every live peer for all entries and merge them; return how many were new."""
+        if self._session is None:
+            return 0
+        import zenoh
+
+        merged = 0
+        replies = self._session.get(
+            self._keys.args("**"),
+            target=zenoh.QueryTarget.ALL_COMPLETE,
+            consolidation=zenoh.ConsolidationMode.NONE,
+            timeout=timeout,
+        )
+        for reply in replies:
+            if reply.ok is None:
+                continue
+            key = self._key_of(str(reply.ok.key_expr))
+            entry = _unpack(reply.ok.payload.to_bytes())
+            if key is None or entry is None:
+                self.rejected += 1
+                continue
+            merged += self._merge(key, *entry)
+        return merged
+
+    def close(self) -> None:
+        """Undeclare the subscriber and queryable (the session stays open)."""
+        for handle in (self._sub, self._queryable):
+            if handle is not None:
+                with contextlib.suppress(Exception):
+                    handle.undeclare()
+        self._sub = self._queryable = None
+
+    # -- internals -----------------------------------------------------------------------
+    def _key_of(self, key_expr: str) -> str | None:
+        head = self._keys.args("")
+        return key_expr[len(head) :] if key_expr.startswith(head) else None
+
+    def _merge(self, key: str, stamp: int, origin: str, value: Any) -> int:
+        with self._lock:
+            held = self._entries.get(key)
+            if held is not None and (held[0], held[1]) >= (stamp, origin):
+                return 0
+            self._entries[key] = (stamp, origin, value)
+        self._save()
+        return 1
+
+    def _on_sample(self, sample: Any) -> None:
+        key = self._key_of(str(sample.key_expr))
+        entry = _unpack(sample.payload.to_bytes())
+        if key is None or entry is None:
+            self.rejected += 1
+            log.warning("rejected malformed args sample on %s", sample.key_expr)
+            return
+        self._merge(key, *entry)
+
+    def _on_query(self, query: Any) -> None:
+        with query:
+            with self._lock:
+                entries = list(self._entries.items())
+            for key, (stamp, origin, value) in entries:
+                query.reply(self._keys.args(key), _pack(stamp, origin, value))
+
+    def _load(self) -> None:
+        try:
+            raw = self._path.read_bytes()
+        except FileNotFoundError:
+            return
+        try:
+            data = msgpack.unpackb(raw, raw=False)
+            for key, (stamp, origin, value) in data.items():
+                self._entries[key] = (int(stamp), str(origin), value)
+        except Exception as e:  # a damaged file must not stop the node: peers still have it
+            log.error("ignoring unreadable args file %s: %s", self._path, e)
+
+    def _save(self) -> None:
+        if self._path is None:
+            return
+        with self._lock:
+            data = {k: list(e) for k, e in self._entries.items()}
+        self._path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = self._path.with_suffix(f".tmp{threading.get_ident()}")
+        tmp.write_bytes(msgpack.packb(data, use_bin_type=True))
+        os.replace(tmp, self._path)
+
+
+def _pack(stamp: int, origin: str, value: Any) -> bytes:
+    try:
+        return msgpack.packb({"ts": stamp, "origin": origin, "value": value}, use_bin_type=True)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"args value cannot be stored: {e}") from None
+
+
+def _unpack(payload: bytes) -> tuple[int, str, Any] | None:
+    try:
+        msg = msgpack.unpackb(payload, raw=False)
+        stamp, origin = msg["ts"], msg["origin"]
+        if not isinstance(stamp, int) or not isinstance(origin, str):
+            return None
+        return stamp, origin, msg["value"]
+    except Exception:
+        return None

@@ -1,0 +1,68 @@
+"""Zenoh sessions for Hera nodes and tools: the embedded default is peers on loopback.
+
+Every node process opens exactly one session in peer mode, listens on its own explicit TCP
+endpoint and connects to every other node's endpoint, with multicast scouting off. There is
+no router and no single point of failure: peers form a full mesh (ZENOH-NOTES "Sessions"),
+so any node can die without cutting the others off, and a restarted node reconnects by
+itself because it connects out to everyone it knows.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import zenoh
+
+DEFAULT_LEASE_MS = 2000
+"""Link lease: a hung or cut-off peer is declared gone after roughly 0.8 x lease.
+
+Measured (ZENOH-NOTES): lease 3000 ms -> 2.4 s, 1000 ms -> 0.8-1.0 s. 2000 ms detects a
+SIGSTOPped node in about 1.7 s and gave no false alarm on a healthy loopback; shorter leases
+raise false alarms under packet loss. A SIGKILLed node is noticed in milliseconds whatever
+the lease, because the kernel closes its sockets.
+"""
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """How one process joins the cluster's bus."""
+
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
+    connect: tuple[str, ...] = ()
+    lease_ms: int = DEFAULT_LEASE_MS
+    mode: str = "peer"
+    extra: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("peer", "router", "client"):
+            raise ValueError(f"bus mode must be peer, router or client, got {self.mode!r}")
+        if not 100 <= int(self.lease_ms) <= 600_000:
+            raise ValueError(f"lease_ms must be within [100, 600000], got {self.lease_ms!r}")
+        for ep in (*self.listen, *self.connect):
+            if not isinstance(ep, str) or "/" not in ep:
+                raise ValueError(f"endpoint must look like 'tcp/127.0.0.1:7447', got {ep!r}")
+
+    def to_zenoh(self) -> zenoh.Config:
+        """Build the zenoh.Config: explicit endpoints, no multicast scouting, our lease."""
+        cfg = zenoh.Config()
+        cfg.insert_json5("mode", json.dumps(self.mode))
+        if self.mode != "client":
+            cfg.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
+        cfg.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        cfg.insert_json5("scouting/multicast/enabled", "false")
+        cfg.insert_json5("transport/link/tx/lease", str(int(self.lease_ms)))
+        cfg.insert_json5("transport/link/tx/keep_alive", "4")
+        for key, value in self.extra.items():
+            cfg.insert_json5(key, json.dumps(value))
+        return cfg
+
+
+def open_session(config: BusConfig) -> zenoh.Session:
+    """Open a Zenoh session; the caller must close it (``with`` or ``try/finally``)."""
+    return zenoh.open(config.to_zenoh())
+
+
+def tcp_endpoint(host: str, port: int) -> str:
+    """Return the Zenoh endpoint string for a TCP address."""
+    return f"tcp/{host}:{int(port)}"

@@ -1,0 +1,152 @@
+"""The ``hera`` command line: up, node, status, down, inject, measures, bench."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import logging
+import sys
+import time
+
+from hera.client import ClusterClient, find_run_dir, pid_alive
+
+BENCHES = ("bus", "kalman", "sync")
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="hera", description=__doc__)
+    sub = p.add_subparsers(dest="cmd", required=True)
+
+    up = sub.add_parser("up", help="start every node of a spec and keep them running")
+    up.add_argument("spec", help="cluster spec (TOML), e.g. deploy/observers.toml")
+    up.add_argument("--duration", type=float, help="stop after this many seconds")
+    up.add_argument("--run-dir", help="where logs, state and recordings go "
+                    "(default hera-run/<cluster>)")
+    up.add_argument("--interval", type=float, default=1.0, help="status refresh period, s")
+
+    node = sub.add_parser("node", help="run one node of a spec (hera up does this for you)")
+    node.add_argument("spec", help="cluster spec (TOML) or resolved cluster.json")
+    node.add_argument("--node", required=True, help="name of the node to run")
+    node.add_argument("--run-dir", help="run directory for state and logs")
+    node.add_argument("--parent-pid", type=int, help="stop when this process is gone")
+    node.add_argument("--log-level", default="INFO")
+
+    for name, text in (("status", "show the status of a running cluster"),
+                       ("down", "stop a running cluster")):
+        s = sub.add_parser(name, help=text)
+        s.add_argument("--run-dir", help="run directory of the cluster")
+        s.add_argument("--cluster", help="name of the cluster, if several run")
+        if name == "status":
+            s.add_argument("--json", action="store_true", help="print JSON")
+
+    inj = sub.add_parser("inject", help="inject a fault into a running cluster")
+    inj.add_argument("node", help="target node")
+    inj.add_argument("fault", help="crash | hang | crash_node | stop | start")
+    inj.add_argument("measure", nargs="?", help="target measure (crash, hang, stop, start)")
+    inj.add_argument("--run-dir")
+    inj.add_argument("--cluster")
+
+    sub.add_parser("measures", help="list the installed measures")
+
+    b = sub.add_parser("bench", help="run a benchmark: " + ", ".join(BENCHES))
+    b.add_argument("name", choices=BENCHES)
+    b.add_argument("rest", nargs=argparse.REMAINDER, help="options of that benchmark")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``hera`` console script; returns the exit code."""
+    args = _parser().parse_args(argv)
+    try:
+        return _dispatch(args)
+    except (LookupError, ValueError, OSError) as e:
+        print(f"hera {args.cmd}: {e}", file=sys.stderr)
+        return 2
+
+
+def _dispatch(args: argparse.Namespace) -> int:
+    if args.cmd == "node":
+        from hera.node import run_node
+        from hera.spec import load_spec
+
+        logging.basicConfig(
+            level=args.log_level.upper(),
+            format=f"%(asctime)s {args.node} %(name)s %(levelname)s %(message)s",
+        )
+        return run_node(load_spec(args.spec), args.node, args.run_dir, args.parent_pid)
+    if args.cmd == "up":
+        from hera.launcher import Launcher
+
+        return Launcher(args.spec, args.run_dir, args.duration, interval=args.interval).run()
+    if args.cmd == "status":
+        return _status(args)
+    if args.cmd == "down":
+        return _down(args)
+    if args.cmd == "inject":
+        return _inject(args)
+    if args.cmd == "measures":
+        from hera.plugins import known_measures
+
+        for name, target in sorted(known_measures().items()):
+            print(f"{name:<16} {target}")
+        return 0
+    if args.cmd == "bench":
+        module = importlib.import_module(f"hera.bench.{args.name}")
+        return int(module.main(args.rest) or 0)
+    raise AssertionError(args.cmd)
+
+
+def _status(args: argparse.Namespace) -> int:
+    from hera.statusview import render_status
+
+    run_dir = find_run_dir(args.run_dir, args.cluster)
+    launcher = {}
+    try:
+        launcher = json.loads((run_dir / "launcher.json").read_text())["nodes"]
+    except (OSError, ValueError, KeyError):
+        pass
+    with ClusterClient.from_run_dir(run_dir) as client:
+        status = client.status(timeout=1.0)
+        if args.json:
+            print(json.dumps({"cluster": client.spec.name, "nodes": status,
+                              "launcher": launcher}, indent=1))
+        else:
+            print(render_status(client.spec.name, status, launcher, run_dir=str(run_dir)))
+    return 0 if status else 1
+
+
+def _down(args: argparse.Namespace) -> int:
+    import os
+    import signal
+
+    run_dir = find_run_dir(args.run_dir, args.cluster)
+    pid = json.loads((run_dir / "launcher.json").read_text())["launcher_pid"]
+    if not pid_alive(pid):
+        print(f"cluster in {run_dir} is not running")
+        return 1
+    os.kill(pid, signal.SIGTERM)
+    deadline = time.monotonic() + 20
+    while pid_alive(pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if pid_alive(pid):
+        print(f"launcher {pid} did not stop within 20 s", file=sys.stderr)
+        return 1
+    print(f"cluster in {run_dir} stopped")
+    return 0
+
+
+def _inject(args: argparse.Namespace) -> int:
+    run_dir = find_run_dir(args.run_dir, args.cluster)
+    if args.fault in ("stop", "start"):
+        verb, request = args.fault, {"measure": args.measure}
+    else:
+        verb, request = "inject", {"fault": args.fault, "measure": args.measure}
+    with ClusterClient.from_run_dir(run_dir) as client:
+        replies = client.query(args.node, verb, request)
+    if args.node not in replies:
+        print(f"hera inject: node {args.node!r} did not answer", file=sys.stderr)
+        return 1
+    reply = replies[args.node]
+    print(json.dumps(reply))
+    return 0 if reply.get("ok") else 1

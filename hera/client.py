@@ -1,0 +1,125 @@
+"""A tool's view of a running cluster: find it, join its bus, query status, send control.
+
+``hera up`` writes ``<run-dir>/cluster.json`` (the resolved spec: ports, world epoch) and
+registers the cluster in a per-user directory (:func:`registry_dir`) with the launcher's pid,
+so ``hera status`` and ``hera down`` find it from another terminal.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from hera.bus import BusConfig, open_session
+from hera.keys import Keys
+from hera.spec import ClusterSpec, load_spec
+
+
+def registry_dir() -> Path:
+    """Where running clusters are registered (``$HERA_REGISTRY`` overrides)."""
+    env = os.environ.get("HERA_REGISTRY")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_RUNTIME_DIR") or tempfile.gettempdir()
+    return Path(base) / f"hera-{os.getuid()}" / "clusters"
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether a process with ``pid`` exists (and is not a zombie we could reap)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    with contextlib.suppress(OSError):
+        with open(f"/proc/{pid}/stat") as f:
+            if f.read().rsplit(")", 1)[1].split()[0] == "Z":
+                return False
+    return True
+
+
+def running_clusters() -> list[dict[str, Any]]:
+    """Registered clusters whose launcher is still alive."""
+    out = []
+    d = registry_dir()
+    for f in sorted(d.glob("*.json")) if d.exists() else ():
+        with contextlib.suppress(OSError, ValueError):
+            entry = json.loads(f.read_text())
+            if pid_alive(int(entry["launcher_pid"])):
+                out.append(entry)
+    return out
+
+
+def find_run_dir(run_dir: str | None, cluster: str | None) -> Path:
+    """The run directory to talk to: the one given, or the only running cluster (by name)."""
+    if run_dir:
+        return Path(run_dir)
+    found = [c for c in running_clusters() if cluster in (None, c["cluster"])]
+    if not found:
+        raise LookupError(
+            "no running cluster found" + (f" called {cluster!r}" if cluster else "")
+            + "; start one with 'hera up SPEC' or give --run-dir"
+        )
+    if len(found) > 1:
+        names = ", ".join(c["cluster"] for c in found)
+        raise LookupError(f"several clusters are running ({names}); pick one with --cluster")
+    return Path(found[0]["run_dir"])
+
+
+class ClusterClient:
+    """A peer session joined to a cluster's bus, for status and control queries."""
+
+    def __init__(self, spec: ClusterSpec) -> None:
+        self.spec = spec
+        self.keys = Keys(spec.name)
+        endpoints = tuple(spec.endpoint(n.name) for n in spec.nodes)
+        self.session = open_session(
+            BusConfig(
+                listen=(f"tcp/{spec.host}:0",), connect=endpoints, lease_ms=spec.lease_ms
+            )
+        )
+
+    @classmethod
+    def from_run_dir(cls, run_dir: str | Path) -> ClusterClient:
+        return cls(load_spec(Path(run_dir) / "cluster.json"))
+
+    def query(self, node: str, verb: str, request: dict | None = None,
+              timeout: float = 1.0) -> dict[str, dict[str, Any]]:
+        """Send a control query to ``node`` (``*`` for all); replies by node name."""
+        payload = json.dumps(request or {})
+        out: dict[str, dict[str, Any]] = {}
+        for reply in self.session.get(
+            self.keys.ctl(node, verb),
+            payload=payload,
+            # ALL, not ALL_COMPLETE: a node's queryable ctl/<node>/* does not include a
+            # query on ctl/*/status, so ALL_COMPLETE would skip every node.
+            target=zenoh.QueryTarget.ALL,
+            consolidation=zenoh.ConsolidationMode.NONE,
+            timeout=timeout,
+        ):
+            if reply.ok is None:
+                continue
+            key = str(reply.ok.key_expr)
+            with contextlib.suppress(ValueError):
+                out[key.split("/")[-2]] = json.loads(reply.ok.payload.to_bytes())
+        return out
+
+    def status(self, timeout: float = 1.0) -> dict[str, dict[str, Any]]:
+        """Every reachable node's status, by node name."""
+        return self.query("*", "status", timeout=timeout)
+
+    def close(self) -> None:
+        self.session.close()
+
+    def __enter__(self) -> ClusterClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,95 @@
+"""Zenoh key expressions of a Hera cluster.
+
+Every key lives under one cluster prefix ``hera/<cluster>/`` so that several clusters can
+share a network (ARCHITECTURE.md, part 1):
+
+- ``hera/<cluster>/data/<name>/<node>``: measurements and estimates (see :mod:`hera.wire`);
+- ``hera/<cluster>/alive/<node>[/<worker>]``: liveliness tokens;
+- ``hera/<cluster>/args/<key>``: the replicated arguments store;
+- ``hera/<cluster>/seq/<name>/<node>``: queryable answering the latest seq a node has seen;
+- ``hera/<cluster>/ctl/<node>/<verb>``: the control plane;
+- ``hera/<cluster>/sync/<group>/...``: the synchronisation service;
+- ``hera/<cluster>/sim/...``: the simulated physical world.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+_CHUNK = re.compile(r"^[A-Za-z0-9_.\-]+$")
+
+
+def check_chunk(value: str, what: str) -> str:
+    """Return ``value`` if it is a valid single key chunk, else raise ValueError naming ``what``.
+
+    A chunk is one non-empty path element of letters, digits, ``_``, ``.`` or ``-``: no
+    ``/``, no Zenoh wildcards (``*``, ``$``), no ``?`` or ``#``.
+    """
+    if not isinstance(value, str) or not _CHUNK.match(value):
+        raise ValueError(
+            f"invalid {what} {value!r}: use letters, digits, '_', '.', '-' (no '/', '*', '$')"
+        )
+    return value
+
+
+@dataclass(frozen=True)
+class Keys:
+    """Key expression builders for one cluster."""
+
+    cluster: str
+
+    def __post_init__(self) -> None:
+        check_chunk(self.cluster, "cluster name")
+
+    @property
+    def prefix(self) -> str:
+        return f"hera/{self.cluster}"
+
+    def data(self, name: str = "*", node: str = "*") -> str:
+        return f"{self.prefix}/data/{name}/{node}"
+
+    @property
+    def data_all(self) -> str:
+        return f"{self.prefix}/data/*/*"
+
+    def parse_data(self, key: str) -> tuple[str, str]:
+        """Return ``(name, node)`` of a data key; ValueError if ``key`` is not one."""
+        head = f"{self.prefix}/data/"
+        if not key.startswith(head):
+            raise ValueError(f"not a data key of cluster {self.cluster!r}: {key!r}")
+        parts = key[len(head) :].split("/")
+        if len(parts) != 2 or not all(parts):
+            raise ValueError(f"data key must be {head}<name>/<node>, got {key!r}")
+        return parts[0], parts[1]
+
+    def alive(self, node: str = "*", worker: str | None = None) -> str:
+        base = f"{self.prefix}/alive/{node}"
+        return base if worker is None else f"{base}/{worker}"
+
+    @property
+    def alive_all(self) -> str:
+        return f"{self.prefix}/alive/**"
+
+    def parse_alive(self, key: str) -> tuple[str, str | None]:
+        """Return ``(node, worker or None)`` of a liveliness key."""
+        head = f"{self.prefix}/alive/"
+        if not key.startswith(head):
+            raise ValueError(f"not an alive key of cluster {self.cluster!r}: {key!r}")
+        parts = key[len(head) :].split("/")
+        return parts[0], (parts[1] if len(parts) > 1 else None)
+
+    def args(self, key: str = "**") -> str:
+        return f"{self.prefix}/args/{key}"
+
+    def seq(self, name: str = "*", node: str = "*") -> str:
+        return f"{self.prefix}/seq/{name}/{node}"
+
+    def ctl(self, node: str = "*", verb: str = "*") -> str:
+        return f"{self.prefix}/ctl/{node}/{verb}"
+
+    def sync(self, group: str, rest: str = "**") -> str:
+        return f"{self.prefix}/sync/{group}/{rest}"
+
+    def sim(self, rest: str = "**") -> str:
+        return f"{self.prefix}/sim/{rest}"

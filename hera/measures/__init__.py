@@ -1,0 +1,1 @@
+"""Measures that ship with the framework itself (observers for fault-tolerance runs)."""

@@ -1,0 +1,202 @@
+"""A measure worker: one thread that runs one measure on an absolute schedule.
+
+Deadline k is ``start + k * period`` on the monotonic clock, so the loop never drifts (the
+original slept a relative ``timeout`` and drifted). A step that starts late is counted in
+the jitter figures; deadlines missed entirely are skipped and counted as overruns, never
+run in a burst. The worker publishes what the measure returns through the node's
+``publish`` function and reports its exit (normal or with the exception) to its supervisor.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+import threading
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from hera.measure import Measure, MeasureContext, Reading
+
+log = logging.getLogger("hera.worker")
+
+
+class InjectedFault(RuntimeError):
+    """A crash injected through the control plane (fault campaigns)."""
+
+
+class WorkerStats:
+    """Counters and recent timing of one worker; read by the status query."""
+
+    WINDOW = 512
+
+    def __init__(self) -> None:
+        self.steps = 0
+        self.published = 0
+        self.empty = 0
+        self.overruns = 0
+        self.skipped_slots = 0
+        self.lateness = deque(maxlen=self.WINDOW)  # seconds after the deadline a step began
+        self.publish_times = deque(maxlen=64)  # monotonic times of recent publications
+
+    def rate(self, now: float | None = None) -> float:
+        """Publications per second over the recent window (0 if idle for 3 periods)."""
+        t = self.publish_times
+        if len(t) < 2:
+            return 0.0
+        now = time.monotonic() if now is None else now
+        span = t[-1] - t[0]
+        if span <= 0 or now - t[-1] > 3 * span / (len(t) - 1) + 1.0:
+            return 0.0
+        return (len(t) - 1) / span
+
+    def jitter_ms(self) -> dict[str, float]:
+        """p50, p99 and max lateness of recent steps, in milliseconds."""
+        if not self.lateness:
+            return {"p50": 0.0, "p99": 0.0, "max": 0.0}
+        xs = sorted(self.lateness)
+        pick = lambda q: xs[min(len(xs) - 1, int(q * len(xs)))]  # noqa: E731
+        return {"p50": pick(0.5) * 1e3, "p99": pick(0.99) * 1e3, "max": xs[-1] * 1e3}
+
+
+PublishFn = Callable[[str, Reading, Any], None]
+SlotRunner = Callable[[Callable[[], Any]], "tuple[bool, Any, Any]"]
+
+
+class Worker:
+    """Runs ``measure_cls`` with ``args`` in a thread until its iterations end or it stops.
+
+    ``on_exit(worker, error)`` is called exactly once from the worker thread when it ends:
+    ``error`` is None for a normal end, else the exception. A worker marked
+    :attr:`abandoned` (reported hung and replaced) never publishes again.
+    """
+
+    _ids = itertools.count(1)
+
+    def __init__(
+        self,
+        measure_cls: type[Measure],
+        args: Mapping[str, Any],
+        ctx: MeasureContext,
+        publish: PublishFn,
+        on_exit: Callable[[Worker, BaseException | None], None],
+        slot_runner: SlotRunner | None = None,
+        halt: threading.Event | None = None,
+    ) -> None:
+        self.id = next(self._ids)
+        self.measure_cls = measure_cls
+        self.args = args
+        self.ctx = ctx
+        self.spec = ctx.spec
+        self.stats = WorkerStats()
+        self.step_started: float | None = None
+        self.abandoned = False
+        self.error: str | None = None
+        self._publish = publish
+        self._on_exit = on_exit
+        self._slot_runner = slot_runner
+        self._stop = threading.Event()
+        self._halt = halt or threading.Event()
+        self._fault: str | None = None
+        self.thread = threading.Thread(
+            target=self._run, name=f"measure-{self.spec.name}-{self.id}", daemon=True
+        )
+
+    def start(self) -> None:
+        self.thread.start()
+
+    def stop(self) -> None:
+        """Ask the loop to end after the current step."""
+        self._stop.set()
+
+    def inject(self, fault: str) -> None:
+        """Make the next step ``crash`` (raise InjectedFault) or ``hang`` (block until the node
+        halts)."""
+        if fault not in ("crash", "hang"):
+            raise ValueError(f"unknown worker fault {fault!r}: use 'crash' or 'hang'")
+        self._fault = fault
+
+    def _run(self) -> None:
+        measure: Measure | None = None
+        error: BaseException | None = None
+        try:
+            measure = self.measure_cls()
+            measure.init(self.args, self.ctx)
+            self._loop(measure)
+        except BaseException as e:  # reported to the supervisor, which decides
+            error = e
+            self.error = f"{type(e).__name__}: {e}"
+            if not self.abandoned:
+                log.warning(
+                    "measure %s crashed: %s\n%s",
+                    self.spec.name,
+                    self.error,
+                    "".join(traceback.format_exception(e)[-3:]),
+                )
+        finally:
+            if measure is not None:
+                try:
+                    measure.close()
+                except Exception as e:
+                    log.warning("measure %s close() failed: %s", self.spec.name, e)
+            self.step_started = None
+            self._on_exit(self, error)
+
+    def _loop(self, measure: Measure) -> None:
+        period = self.spec.period
+        remaining = self.spec.iterations
+        start = time.monotonic()
+        k = 0
+        while not self._stop.is_set() and not self.abandoned:
+            deadline = start + k * period
+            now = time.monotonic()
+            if now < deadline:
+                if self._stop.wait(deadline - now):
+                    break
+                now = time.monotonic()
+            elif now - deadline >= period:  # missed whole deadlines: skip, never burst
+                missed = math.floor((now - deadline) / period)
+                self.stats.overruns += missed
+                k += missed
+                deadline = start + k * period
+            self.stats.lateness.append(now - deadline)
+            self._step(measure)
+            k += 1
+            if remaining is not None:
+                remaining -= 1
+                if remaining <= 0:
+                    break
+
+    def _step(self, measure: Measure) -> None:
+        self.step_started = time.monotonic()
+        t_wall = time.time()
+        fault, self._fault = self._fault, None
+        if fault == "crash":
+            raise InjectedFault(f"crash injected into {self.spec.name}")
+        if fault == "hang":
+            self._halt.wait()
+            raise InjectedFault(f"hang injected into {self.spec.name} ended by shutdown")
+        grant = None
+        if self._slot_runner is not None:
+            fired, result, grant = self._slot_runner(measure.measure)
+            if not fired:
+                self.stats.skipped_slots += 1
+                result = None
+        else:
+            result = measure.measure()
+        self.step_started = None
+        self.stats.steps += 1
+        if self.abandoned:
+            return
+        if result is None:
+            self.stats.empty += 1
+            return
+        reading = result if isinstance(result, Reading) else Reading(result)
+        if reading.t is None:
+            reading = Reading(reading.values, t_wall)
+        self._publish(self.spec.name, reading, grant)
+        self.stats.published += 1
+        self.stats.publish_times.append(time.monotonic())
