@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import json
 import logging
@@ -21,8 +22,9 @@ def _parser() -> argparse.ArgumentParser:
     up = sub.add_parser("up", help="start every node of a spec and keep them running")
     up.add_argument("spec", help="cluster spec (TOML), e.g. deploy/observers.toml")
     up.add_argument("--duration", type=float, help="stop after this many seconds")
-    up.add_argument("--run-dir", help="where logs, state and recordings go "
-                    "(default hera-run/<cluster>)")
+    up.add_argument(
+        "--run-dir", help="where logs, state and recordings go (default hera-run/<cluster>)"
+    )
     up.add_argument("--interval", type=float, default=1.0, help="status refresh period, s")
 
     node = sub.add_parser("node", help="run one node of a spec (hera up does this for you)")
@@ -32,8 +34,10 @@ def _parser() -> argparse.ArgumentParser:
     node.add_argument("--parent-pid", type=int, help="stop when this process is gone")
     node.add_argument("--log-level", default="INFO")
 
-    for name, text in (("status", "show the status of a running cluster"),
-                       ("down", "stop a running cluster")):
+    for name, text in (
+        ("status", "show the status of a running cluster"),
+        ("down", "stop a running cluster"),
+    ):
         s = sub.add_parser(name, help=text)
         s.add_argument("--run-dir", help="run directory of the cluster")
         s.add_argument("--cluster", help="name of the cluster, if several run")
@@ -102,15 +106,16 @@ def _status(args: argparse.Namespace) -> int:
 
     run_dir = find_run_dir(args.run_dir, args.cluster)
     launcher = {}
-    try:
+    with contextlib.suppress(OSError, ValueError, KeyError):
         launcher = json.loads((run_dir / "launcher.json").read_text())["nodes"]
-    except (OSError, ValueError, KeyError):
-        pass
     with ClusterClient.from_run_dir(run_dir) as client:
         status = client.status(timeout=1.0)
         if args.json:
-            print(json.dumps({"cluster": client.spec.name, "nodes": status,
-                              "launcher": launcher}, indent=1))
+            print(
+                json.dumps(
+                    {"cluster": client.spec.name, "nodes": status, "launcher": launcher}, indent=1
+                )
+            )
         else:
             print(render_status(client.spec.name, status, launcher, run_dir=str(run_dir)))
     return 0 if status else 1

@@ -38,10 +38,9 @@ def pid_alive(pid: int) -> bool:
         return False
     except PermissionError:
         return True
-    with contextlib.suppress(OSError):
-        with open(f"/proc/{pid}/stat") as f:
-            if f.read().rsplit(")", 1)[1].split()[0] == "Z":
-                return False
+    with contextlib.suppress(OSError), open(f"/proc/{pid}/stat") as f:
+        if f.read().rsplit(")", 1)[1].split()[0] == "Z":
+            return False
     return True
 
 
@@ -64,7 +63,8 @@ def find_run_dir(run_dir: str | None, cluster: str | None) -> Path:
     found = [c for c in running_clusters() if cluster in (None, c["cluster"])]
     if not found:
         raise LookupError(
-            "no running cluster found" + (f" called {cluster!r}" if cluster else "")
+            "no running cluster found"
+            + (f" called {cluster!r}" if cluster else "")
             + "; start one with 'hera up SPEC' or give --run-dir"
         )
     if len(found) > 1:
@@ -81,17 +81,16 @@ class ClusterClient:
         self.keys = Keys(spec.name)
         endpoints = tuple(spec.endpoint(n.name) for n in spec.nodes)
         self.session = open_session(
-            BusConfig(
-                listen=(f"tcp/{spec.host}:0",), connect=endpoints, lease_ms=spec.lease_ms
-            )
+            BusConfig(listen=(f"tcp/{spec.host}:0",), connect=endpoints, lease_ms=spec.lease_ms)
         )
 
     @classmethod
     def from_run_dir(cls, run_dir: str | Path) -> ClusterClient:
         return cls(load_spec(Path(run_dir) / "cluster.json"))
 
-    def query(self, node: str, verb: str, request: dict | None = None,
-              timeout: float = 1.0) -> dict[str, dict[str, Any]]:
+    def query(
+        self, node: str, verb: str, request: dict | None = None, timeout: float = 1.0
+    ) -> dict[str, dict[str, Any]]:
         """Send a control query to ``node`` (``*`` for all); replies by node name."""
         payload = json.dumps(request or {})
         out: dict[str, dict[str, Any]] = {}

@@ -118,7 +118,10 @@ class Launcher:
             str(os.getpid()),
         ]
         np.proc = subprocess.Popen(
-            cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+            cmd,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
             start_new_session=True,
         )
         np.starts.append(time.monotonic())
@@ -170,8 +173,11 @@ class Launcher:
         self.registry_file.parent.mkdir(parents=True, exist_ok=True)
         self.registry_file.write_text(
             json.dumps(
-                {"cluster": self.spec.name, "run_dir": str(self.run_dir),
-                 "launcher_pid": os.getpid()}
+                {
+                    "cluster": self.spec.name,
+                    "run_dir": str(self.run_dir),
+                    "launcher_pid": os.getpid(),
+                }
             )
         )
         handlers = {}

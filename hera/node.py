@@ -6,7 +6,8 @@ Start-up order matters for the guarantees of ARCHITECTURE.md:
 2. subscribe to the data keys (store + optional CSV log) and answer seq and args queries;
 3. recover the args and the latest seqs of this node's measures from live peers, so a
    restarted node continues its seqs and never recalibrates;
-4. declare the liveliness token, the control plane and start the supervised measures.
+4. declare the liveliness token, start the supervised measures, then answer the control
+   plane (a node that answers status has all its measures registered).
 
 Exit codes: 0 after a requested stop, 3 when the supervisor's restart intensity is exceeded
 (escalation), 70 when a crash is injected. The launcher restarts a node that exits non-zero.
@@ -21,6 +22,7 @@ import os
 import signal
 import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -59,6 +61,8 @@ class Node:
         self.rejected: dict[str, int] = {}
         self.last_rejection: str | None = None
         self.peers: dict[str, float] = {}
+        self.peer_events: deque[tuple[float, str, str]] = deque(maxlen=64)
+        self.transit: dict[str, deque[float]] = {}
         self.halt = threading.Event()
         self.exit_code = 0
         self.started_at = time.time()
@@ -92,16 +96,11 @@ class Node:
         state_dir = self.run_dir / "state" / self.name if self.run_dir is not None else None
         self.args = ArgsStore(self.name, s, self.keys, state_dir)
         self._handles.append(
-            s.liveliness().declare_subscriber(
-                self.keys.alive_all, self._on_alive, history=True
-            )
+            s.liveliness().declare_subscriber(self.keys.alive_all, self._on_alive, history=True)
         )
         self._recover()
         self._handles.append(s.liveliness().declare_token(self.keys.alive(self.name)))
         self._start_sync()
-        self._handles.append(
-            s.declare_queryable(self.keys.ctl(self.name, "*"), self._on_control, complete=True)
-        )
         self.supervisor = Supervisor(
             self.spec.intensity,
             self.spec.intensity_period,
@@ -110,6 +109,10 @@ class Node:
         )
         for decl in self.decl.measures:
             self._add_child(decl)
+        # last: a node that answers status has all its measures registered
+        self._handles.append(
+            s.declare_queryable(self.keys.ctl(self.name, "*"), self._on_control, complete=True)
+        )
         log.info("node %s up on %s with %d measures", self.name, me, len(self.decl.measures))
 
     def _recover(self) -> None:
@@ -286,9 +289,16 @@ class Node:
         except ValueError as e:
             self._reject("bad_key", str(e))
             return
-        if self.store.offer(name, node, msg) and self.csv is not None:
-            if not self.spec.log_names or name in self.spec.log_names:
-                self.csv.write(self.store.get_one(name, node))
+        if not self.store.offer(name, node, msg):
+            return
+        held = self.store.get_one(name, node)
+        # publish-to-store transit on the wall clock (exact on one host; needs NTP across)
+        window = self.transit.get(node)
+        if window is None:
+            window = self.transit[node] = deque(maxlen=4096)
+        window.append(held.arrival_wall - held.t)
+        if self.csv is not None and (not self.spec.log_names or name in self.spec.log_names):
+            self.csv.write(held)
 
     def _reject(self, kind: str, message: str) -> None:
         self.rejected[kind] = self.rejected.get(kind, 0) + 1
@@ -317,10 +327,13 @@ class Node:
             return
         if worker is not None:
             return
+        now = time.time()
         if sample.kind == zenoh.SampleKind.PUT:
-            self.peers[node] = time.time()
+            self.peers[node] = now
+            self.peer_events.append((now, node, "up"))
         else:
             self.peers.pop(node, None)
+            self.peer_events.append((now, node, "down"))
 
     # -- control plane ------------------------------------------------------------------
     def _on_control(self, query: zenoh.Query) -> None:
@@ -341,7 +354,7 @@ class Node:
 
         Verbs: ``status``; ``start``/``stop`` {"measure"}; ``inject`` {"fault": "crash" |
         "hang" | "crash_node", "measure"} or {"target": "board", ...} for board faults;
-        ``shutdown``.
+        ``args`` (every replicated arg); ``store`` {"name"?} (held samples); ``shutdown``.
         """
         if verb == "status":
             return self.status()
@@ -356,10 +369,30 @@ class Node:
             return {"measure": measure, "state": self.supervisor.children[measure].state}
         if verb == "inject":
             return self._inject(request)
+        if verb == "args":
+            return {"args": self.args.items()}
+        if verb == "store":
+            name = request.get("name")
+            samples = self.store.snapshot() if name is None else self.store.get(str(name))
+            return {
+                "samples": [
+                    {
+                        "name": s.name,
+                        "node": s.node,
+                        "seq": s.seq,
+                        "t": s.t,
+                        "age_s": round(s.age(), 4),
+                        "values": list(s.values),
+                    }
+                    for s in samples
+                ]
+            }
         if verb == "shutdown":
             threading.Timer(0.05, self.stop).start()
             return {"stopping": self.name}
-        raise ValueError(f"unknown control verb {verb!r}: use status, start, stop, inject")
+        raise ValueError(
+            f"unknown control verb {verb!r}: use status, start, stop, inject, args, store, shutdown"
+        )
 
     def _inject(self, request: dict[str, Any]) -> dict[str, Any]:
         if request.get("target") == "board":
@@ -379,15 +412,13 @@ class Node:
                 raise ValueError(f"fault {fault!r} needs a 'measure' name")
             self.supervisor.worker(measure).inject(fault)
             return {"measure": measure, "fault": fault}
-        raise ValueError(
-            f"unknown fault {fault!r}: use crash, hang, crash_node, or target=board"
-        )
+        raise ValueError(f"unknown fault {fault!r}: use crash, hang, crash_node, or target=board")
 
     def status(self) -> dict[str, Any]:
         """The node's status as a JSON-able dict (see README "Control plane")."""
         measures = {}
         now = time.monotonic()
-        for cid, c in (self.supervisor.children.items() if self.supervisor else ()):
+        for cid, c in self.supervisor.children.items() if self.supervisor else ():
             w = c.worker
             st = w.stats if w is not None else None
             measures[cid] = {
@@ -405,6 +436,7 @@ class Node:
                 "skipped_slots": st.skipped_slots if st else 0,
                 "counters": dict(w.ctx.counters) if w is not None else {},
                 "period_s": w.spec.period if w is not None else None,
+                "restart_ms": c.restart_ms,
             }
         out: dict[str, Any] = {
             "node": self.name,
@@ -421,6 +453,8 @@ class Node:
             "rejected": dict(self.rejected),
             "last_rejection": self.last_rejection,
             "peers": sorted(self.peers),
+            "peer_events": [{"t": t, "node": n, "event": e} for t, n, e in list(self.peer_events)],
+            "transit_ms": {n: _percentiles(w) for n, w in list(self.transit.items())},
             "args": len(self.args.items()) if self.args else 0,
             "log_rows": self.csv.rows if self.csv else 0,
         }
@@ -428,6 +462,14 @@ class Node:
             with contextlib.suppress(Exception):
                 out["sync"] = self.sync.status()
         return out
+
+
+def _percentiles(window: deque[float]) -> dict[str, float]:
+    xs = sorted(window)
+    if not xs:
+        return {}
+    pick = lambda q: round(xs[min(len(xs) - 1, int(q * len(xs)))] * 1e3, 4)  # noqa: E731
+    return {"p50": pick(0.5), "p99": pick(0.99), "max": round(xs[-1] * 1e3, 4), "n": len(xs)}
 
 
 def run_node(spec: ClusterSpec, name: str, run_dir: str | None, parent_pid: int | None) -> int:

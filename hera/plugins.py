@@ -36,8 +36,7 @@ def find_measure(use: str) -> type[Measure]:
         if not eps:
             known = ", ".join(sorted(known_measures())) or "none installed"
             raise UnknownMeasure(
-                f"unknown measure {use!r}; known measures: {known} "
-                "(or give 'package.module:Class')"
+                f"unknown measure {use!r}; known measures: {known} (or give 'package.module:Class')"
             )
         target = eps[0].load()
     if not (isinstance(target, type) and issubclass(target, Measure)):

@@ -17,7 +17,7 @@ from typing import Any
 
 from hera.bus import DEFAULT_LEASE_MS, tcp_endpoint
 from hera.keys import check_chunk
-from hera.measure import RESTART_TYPES
+from hera.measure import RESTART_TYPES, MeasureSpec
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -175,10 +175,14 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
             raise fail(f"[{name}]", "must be a table")
         return value
 
-    unknown = set(data) - {"cluster", "supervisor", "world", "defaults", "logging"} - {
-        "nodes",
-        "measures",
-    }
+    unknown = (
+        set(data)
+        - {"cluster", "supervisor", "world", "defaults", "logging"}
+        - {
+            "nodes",
+            "measures",
+        }
+    )
     if unknown:
         raise fail("top level", f"unknown table(s) {sorted(unknown)}")
     cluster = table("cluster")
@@ -232,13 +236,21 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
         for i in range(1, count + 1):
             nm = base_name.replace("{i}", str(i)) if count > 1 or "{i}" in base_name else base_name
             try:
-                check_chunk(nm, "measure name")
-                out.append(MeasureDecl(**{**merged, "name": nm}))
+                decl = MeasureDecl(**{**merged, "name": nm})
+                MeasureSpec(  # validates name, period, iterations, slot, restart, hang factor
+                    name=nm,
+                    period=1.0 if decl.period is None else decl.period,
+                    iterations=decl.iterations,
+                    slot=1.0 if decl.slot is None else decl.slot,
+                    restart=decl.restart,
+                    hang_factor=decl.hang_factor,
+                )
+                out.append(decl)
             except (TypeError, ValueError) as e:
                 raise fail(where, str(e)) from None
         return out
 
-    for i, n in enumerate(node_tables):
+    for n in node_tables:
         for j, m in enumerate(n.get("measures", [])):
             per_node[n["name"]].extend(decls(m, f"[[nodes.measures]] #{j + 1} of {n['name']}"))
     for j, m in enumerate(data.get("measures", [])):

@@ -39,8 +39,11 @@ def render_status(
         rate = sum(m.get("rate_hz", 0.0) for m in ms.values())
         p99 = max((m.get("jitter_ms", {}).get("p99", 0.0) for m in ms.values()), default=0.0)
         restarts = sum(m.get("restarts", 0) for m in ms.values())
-        state = la.get("state", "?") if n not in status else ("escalated" if st.get("escalated")
-                                                              else la.get("state", "up"))
+        state = (
+            la.get("state", "?")
+            if n not in status
+            else ("escalated" if st.get("escalated") else la.get("state", "up"))
+        )
         lines.append(
             f"{n:<10} {st.get('pid', la.get('pid')) or '-':>7} {state:<10} "
             f"{la.get('restarts', 0):>13} {f'{running}/{len(ms)}':>9} {_fmt_rate(rate)} "
@@ -53,8 +56,7 @@ def render_status(
             if info.get("state") != "running" or info.get("last_error") or info.get("counters"):
                 extra = " ".join(f"{k}={v:g}" for k, v in info.get("counters", {}).items())
                 err = f" last error: {info['last_error']}" if info.get("last_error") else ""
-                details.append(f"  {n}/{m}: {info.get('state')} seq={info.get('seq')} "
-                               f"{extra}{err}")
+                details.append(f"  {n}/{m}: {info.get('state')} seq={info.get('seq')} {extra}{err}")
     if details:
         lines.append("measures:")
         lines.extend(details[:20])

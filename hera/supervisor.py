@@ -50,11 +50,16 @@ class Child:
     crashes: int = 0
     last_error: str | None = None
     last_restart_ms: float | None = None
+    last_exit_at: float | None = None  # monotonic time the previous worker ended or hung
     stopped_by_request: bool = field(default=False, repr=False)
 
-
-class Escalation(RuntimeError):
-    """Raised into the escalation callback's argument: restart intensity exceeded."""
+    @property
+    def restart_ms(self) -> float | None:
+        """Milliseconds from the last crash or hang to the replacement's first step."""
+        w = self.worker
+        if self.last_exit_at is None or w is None or w.first_step_at is None:
+            return None
+        return round((w.first_step_at - self.last_exit_at) * 1e3, 3)
 
 
 class Supervisor:
@@ -177,6 +182,7 @@ class Supervisor:
         child = self._child_of(worker)
         if child is None or worker.abandoned:
             return  # a replaced (hung) worker finally ended: already handled
+        child.last_exit_at = worker.ended_at
         if error is None:
             child.state = "stopped" if child.stopped_by_request else "done"
             if child.restart != "permanent" or child.stopped_by_request:
@@ -202,6 +208,7 @@ class Supervisor:
             if started is not None and now - started > limit:
                 w.abandoned = True
                 w.stop()
+                child.last_exit_at = now
                 child.hangs += 1
                 child.last_error = f"hung: step running for {now - started:.2f} s > {limit:.2f} s"
                 log.warning("measure %s %s; replacing it", child.id, child.last_error)

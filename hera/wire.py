@@ -44,9 +44,7 @@ class Message:
     grant: tuple[int, int] | None = None
 
 
-def encode(
-    seq: int, t: float, values: "list[float] | tuple[float, ...]", grant=None
-) -> bytes:
+def encode(seq: int, t: float, values: list[float] | tuple[float, ...], grant=None) -> bytes:
     """Encode one sample as a version-1 payload; raises WireError on values it cannot carry."""
     vals = [float(v) for v in values]
     msg = {"v": FORMAT_VERSION, "seq": int(seq), "t": float(t), "val": vals}

@@ -93,6 +93,8 @@ class Worker:
         self.spec = ctx.spec
         self.stats = WorkerStats()
         self.step_started: float | None = None
+        self.first_step_at: float | None = None
+        self.ended_at: float | None = None
         self.abandoned = False
         self.error: str | None = None
         self._publish = publish
@@ -143,6 +145,7 @@ class Worker:
                 except Exception as e:
                     log.warning("measure %s close() failed: %s", self.spec.name, e)
             self.step_started = None
+            self.ended_at = time.monotonic()
             self._on_exit(self, error)
 
     def _loop(self, measure: Measure) -> None:
@@ -172,6 +175,8 @@ class Worker:
 
     def _step(self, measure: Measure) -> None:
         self.step_started = time.monotonic()
+        if self.first_step_at is None:
+            self.first_step_at = self.step_started
         t_wall = time.time()
         fault, self._fault = self._fault, None
         if fault == "crash":

@@ -1,0 +1,243 @@
+"""``hera bench bus``: the node runtime's figures on real node processes over loopback.
+
+Prints, each measured in this run:
+
+- publish-to-peer-store latency (p50, p99) between two node processes at 100 Hz and 1 kHz;
+- how many messages per second one node's store absorbs from a flooding peer;
+- the CPU share of an idle 5-node observer cluster (deploy/observers.toml);
+- how fast a crashed measure runs again, and how fast peers notice a SIGKILLed and a
+  SIGSTOPped node,
+
+next to the targets of issue 2 and the original Hera's published figures (thesis ch. 5).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+from hera.bus import BusConfig, open_session
+from hera.client import ClusterClient
+from hera.wire import encode
+
+OBSERVERS = Path(__file__).resolve().parents[2] / "deploy" / "observers.toml"
+
+PAIR = """
+[cluster]
+name = "{name}"
+[[nodes]]
+name = "a"
+[[nodes.measures]]
+use = "hera.bench.beacon:Beacon"
+name = "beacon"
+period = {period}
+[[nodes]]
+name = "b"
+"""
+
+
+@contextlib.contextmanager
+def running(spec_text: str | None, spec_path: Path | None = None) -> Iterator[ClusterClient]:
+    """Start ``hera up`` on a spec in a temporary run dir; stop it and its nodes after."""
+    with tempfile.TemporaryDirectory(prefix="hera-bench-") as tmp:
+        if spec_path is None:
+            spec_path = Path(tmp) / "spec.toml"
+            spec_path.write_text(spec_text)
+        run_dir = Path(tmp) / "run"
+        env = {**os.environ, "HERA_REGISTRY": str(Path(tmp) / "registry")}
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "hera",
+                "up",
+                str(spec_path),
+                "--run-dir",
+                str(run_dir),
+                "--interval",
+                "3600",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            env=env,
+        )
+        client = None
+        try:
+            deadline = time.monotonic() + 30
+            while not (run_dir / "launcher.json").exists():
+                if time.monotonic() > deadline or proc.poll() is not None:
+                    raise RuntimeError("the cluster did not start")
+                time.sleep(0.05)
+            client = ClusterClient.from_run_dir(run_dir)
+            n = len(client.spec.nodes)
+            while len(client.status(0.5)) < n:
+                if time.monotonic() > deadline:
+                    raise RuntimeError("not every node answered within 30 s")
+                time.sleep(0.1)
+            yield client
+        finally:
+            if client is not None:
+                client.close()
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+def latency(period: float, seconds: float) -> dict[str, float]:
+    """Transit p50/p99 (ms) of node a's samples into node b's store at 1/period Hz."""
+    with running(PAIR.format(name=f"lat{int(1 / period)}", period=period)) as c:
+        time.sleep(seconds)
+        st = c.query("b", "status")["b"]
+        return st["transit_ms"]["a"]
+
+
+def absorb(seconds: float) -> float:
+    """Samples per second node b's store accepted while a local session floods it."""
+    with (
+        running(PAIR.format(name="absorb", period=1.0)) as c,
+        open_session(BusConfig(connect=(c.spec.endpoint("b"),))) as s,
+    ):
+        pubs = [s.declare_publisher(f"hera/absorb/data/flood{i}/x") for i in range(8)]
+        time.sleep(0.3)
+        before = c.query("b", "status")["b"]["store"]["accepted"]
+        t0 = time.monotonic()
+        seq = 0
+        now = time.time()
+        while time.monotonic() - t0 < seconds:
+            seq += 1
+            payload = encode(seq, now, (1.0, 2.0, 3.0))
+            for p in pubs:
+                p.put(payload)
+        time.sleep(0.5)  # let the receiver drain its queue
+        after = c.query("b", "status")["b"]["store"]["accepted"]
+        return (after - before) / (time.monotonic() - t0)
+
+
+def _cpu_seconds(pid: int) -> float:
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _down_seen(c: ClusterClient, victim: str, since: float, timeout: float) -> float | None:
+    """Seconds from ``since`` (wall) to the first peer reporting ``victim`` down."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        seen = [
+            e["t"] - since
+            for node, st in c.status(0.5).items()
+            if node != victim
+            for e in st["peer_events"]
+            if e["node"] == victim and e["event"] == "down" and e["t"] >= since
+        ]
+        if seen:
+            return min(seen)
+        time.sleep(0.05)
+    return None
+
+
+def observers(cpu_seconds: float, crashes: int) -> dict[str, object]:
+    """CPU share, crash restart time and failure detection on the 5-node observer cluster."""
+    out: dict[str, object] = {}
+    with running(None, OBSERVERS) as c:
+        time.sleep(2.0)
+        pids = {n: st["pid"] for n, st in c.status(1.0).items()}
+        before = {n: _cpu_seconds(p) for n, p in pids.items()}
+        t0 = time.monotonic()
+        time.sleep(cpu_seconds)
+        span = time.monotonic() - t0
+        used = {n: _cpu_seconds(p) - before[n] for n, p in pids.items()}
+        out["cpu_total_pct"] = 100 * sum(used.values()) / span
+        out["cpu_machine_pct"] = out["cpu_total_pct"] / os.cpu_count()
+        restarts = []
+        for _ in range(crashes):
+            before_r = c.query("n2", "status")["n2"]["measures"]["obs1"]["restarts"]
+            c.query("n2", "inject", {"fault": "crash", "measure": "obs1"})
+            deadline = time.monotonic() + 5
+            while time.monotonic() < deadline:
+                m = c.query("n2", "status")["n2"]["measures"]["obs1"]
+                if m["restarts"] > before_r and m["restart_ms"] is not None:
+                    restarts.append(m["restart_ms"])
+                    break
+                time.sleep(0.02)
+        out["restart_ms"] = restarts
+        t_kill = time.time()
+        os.kill(pids["n3"], signal.SIGKILL)
+        out["sigkill_s"] = _down_seen(c, "n3", t_kill, 5.0)
+        t_stop = time.time()
+        os.kill(pids["n4"], signal.SIGSTOP)
+        try:
+            out["sigstop_s"] = _down_seen(c, "n4", t_stop, 10.0)
+        finally:
+            os.kill(pids["n4"], signal.SIGCONT)
+    return out
+
+
+def main(argv: list[str]) -> int:
+    """Run the bus benchmark and print its table; returns 0."""
+    ap = argparse.ArgumentParser(prog="hera bench bus", description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=5.0, help="duration of each latency run")
+    ap.add_argument("--crashes", type=int, default=5, help="injected measure crashes")
+    ap.add_argument("--quick", action="store_true", help="short runs (for smoke tests)")
+    args = ap.parse_args(argv)
+    secs = 1.0 if args.quick else args.seconds
+    print("hera bench bus: real node processes, Zenoh peers on 127.0.0.1", flush=True)
+    lat100 = latency(0.01, secs)
+    lat1k = latency(0.001, secs)
+    rate = absorb(1.0 if args.quick else 3.0)
+    obs = observers(1.0 if args.quick else 5.0, 2 if args.quick else args.crashes)
+
+    def fmt(x, unit, digits=2):
+        return "n/a" if x is None else f"{x:.{digits}f} {unit}"
+
+    rs = obs["restart_ms"]
+    rows = [
+        ("latency p50 @100 Hz", fmt(lat100.get("p50"), "ms", 3), "", ""),
+        ("latency p99 @100 Hz", fmt(lat100.get("p99"), "ms", 3), "<= 2 ms", ""),
+        ("latency p50 @1 kHz", fmt(lat1k.get("p50"), "ms", 3), "", ""),
+        ("latency p99 @1 kHz", fmt(lat1k.get("p99"), "ms", 3), "", ""),
+        ("store absorbs", f"{rate:,.0f} msg/s", "", ""),
+        (
+            "idle 5-node observers CPU",
+            f"{obs['cpu_total_pct']:.1f} % of one core "
+            f"({obs['cpu_machine_pct']:.1f} % of {os.cpu_count()} cores)",
+            "",
+            "",
+        ),
+        (
+            "crashed measure running again",
+            f"median {statistics.median(rs):.1f} ms, max {max(rs):.1f} ms" if rs else "n/a",
+            "<= 100 ms",
+            "about 2 s (thesis 5.1)",
+        ),
+        (
+            "SIGKILLed node noticed",
+            fmt(obs["sigkill_s"], "s", 3),
+            "<= 0.5 s",
+            "6-10 s (thesis 5.3)",
+        ),
+        ("SIGSTOPped node noticed", fmt(obs["sigstop_s"], "s", 3), "<= 3 s", "6-10 s (thesis 5.3)"),
+    ]
+    w = max(len(r[0]) for r in rows)
+    v = max(len(r[1]) for r in rows)
+    print(f"{'figure':<{w}}  {'measured':<{v}}  {'target':<9}  original Hera")
+    for name, value, target, ref in rows:
+        print(f"{name:<{w}}  {value:<{v}}  {target:<9}  {ref}")
+    kill, stop = obs["sigkill_s"], obs["sigstop_s"]
+    if kill:
+        print(f"ratio: SIGKILL detection {8.0 / kill:,.0f}x faster than the original's 8 s")
+    if stop:
+        print(f"ratio: hang detection {8.0 / stop:,.1f}x faster than the original's 8 s")
+    return 0

@@ -1,0 +1,30 @@
+"""The bus benchmark runs end to end and prints every figure (values are not asserted:
+speed is shown by the benchmark, never by timed assertions)."""
+
+import subprocess
+import sys
+
+from conftest import cluster_env
+
+
+def test_bench_bus_quick_prints_every_figure(tmp_path):
+    out = subprocess.run(
+        [sys.executable, "-m", "hera", "bench", "bus", "--quick"],
+        env=cluster_env(tmp_path),
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    rows = {line.split("  ")[0]: line for line in out.stdout.splitlines()}
+    for figure in (
+        "latency p99 @100 Hz",
+        "latency p99 @1 kHz",
+        "store absorbs",
+        "idle 5-node observers CPU",
+        "crashed measure running again",
+        "SIGKILLed node noticed",
+        "SIGSTOPped node noticed",
+    ):
+        assert figure in rows, out.stdout
+        assert "n/a" not in rows[figure], rows[figure]

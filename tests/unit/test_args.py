@@ -1,0 +1,67 @@
+import time
+
+import pytest
+from conftest import wait_for
+
+from hera.args import ArgsStore
+from hera.bus import BusConfig, open_session, tcp_endpoint
+from hera.keys import Keys
+from hera.launcher import free_ports
+
+
+def test_last_writer_wins_by_timestamp_then_origin():
+    a = ArgsStore("a")
+    a._merge("k", 10, "a", 1)
+    a._merge("k", 5, "z", 2)  # older: ignored
+    assert a.get("k") == 1
+    a._merge("k", 10, "b", 3)  # same time: the larger origin wins, on every replica
+    assert a.get("k") == 3
+
+
+def test_persisted_and_reloaded(tmp_path):
+    a = ArgsStore("a", state_dir=tmp_path)
+    a.put("calib/n1/mag", {"bx": 0.1, "by": -0.2})
+    b = ArgsStore("a", state_dir=tmp_path)
+    assert b.get("calib/n1/mag") == {"bx": 0.1, "by": -0.2}
+
+
+def test_damaged_file_is_ignored_not_fatal(tmp_path):
+    (tmp_path / ArgsStore.FILE).write_bytes(b"\xc1garbage")
+    assert ArgsStore("a", state_dir=tmp_path).items() == {}
+
+
+def test_bad_keys_and_values_are_refused():
+    a = ArgsStore("a")
+    with pytest.raises(ValueError, match="args key element"):
+        a.put("a/*/b", 1)
+    with pytest.raises(ValueError, match="cannot be stored"):
+        a.put("k", object())
+
+
+def test_replicates_between_sessions_and_recovers_on_start():
+    keys = Keys("argtest")
+    p1, p2, p3 = free_ports("127.0.0.1", 3)
+    e1, e2 = tcp_endpoint("127.0.0.1", p1), tcp_endpoint("127.0.0.1", p2)
+    s1 = open_session(BusConfig(listen=(e1,)))
+    s2 = open_session(BusConfig(listen=(e2,), connect=(e1,)))
+    a1 = ArgsStore("n1", s1, keys)
+    a2 = ArgsStore("n2", s2, keys)
+    try:
+        time.sleep(0.2)
+        a1.put("gain", 2.5)
+        wait_for(lambda: a2.get("gain") == 2.5, 5, "replication")
+        a2.put("gain", 3.0)
+        wait_for(lambda: a1.get("gain") == 3.0, 5, "replication back")
+        # a node that starts later gets everything from the live peers
+        s3 = open_session(BusConfig(listen=(tcp_endpoint("127.0.0.1", p3),), connect=(e1, e2)))
+        a3 = ArgsStore("n3", s3, keys)
+        try:
+            wait_for(lambda: a3.recover(timeout=1.0) >= 0 and a3.get("gain") == 3.0, 5, "recovery")
+        finally:
+            a3.close()
+            s3.close()
+    finally:
+        a1.close()
+        a2.close()
+        s1.close()
+        s2.close()
