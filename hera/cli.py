@@ -53,6 +53,34 @@ def _parser() -> argparse.ArgumentParser:
 
     sub.add_parser("measures", help="list the installed measures")
 
+    rp = sub.add_parser("replay", help="run fusion models offline over recordings")
+    rp.add_argument("recordings", help="a run dir or a folder of <name>_<node>.csv files")
+    rp.add_argument("--out", required=True, help="where to write <model>_<node>.csv")
+    rp.add_argument("--models", help="comma-separated model names (default: the spec's)")
+    rp.add_argument(
+        "--spec", help="spec giving the models' parameters (default: the recordings' cluster.json)"
+    )
+    rp.add_argument("--node", default="replay", help="node name of the outputs")
+
+    ev = sub.add_parser("eval", help="score a run's estimates against the truth")
+    ev.add_argument("run_dir")
+    ev.add_argument(
+        "--settle",
+        type=float,
+        default=10.0,
+        help="s before position/radius errors count (default 10)",
+    )
+    ev.add_argument(
+        "--omega-after",
+        type=float,
+        default=3.0,
+        help="s before angular speed errors count (default 3)",
+    )
+    ev.add_argument("--plots", help="folder for the PNG plots (default RUN_DIR/eval)")
+    ev.add_argument("--no-plots", action="store_true")
+    ev.add_argument("--node", help="node whose models are plotted (default: the first)")
+    ev.add_argument("--json", action="store_true", help="print JSON")
+
     b = sub.add_parser("bench", help="run a benchmark: " + ", ".join(BENCHES))
     b.add_argument("name", choices=BENCHES)
     b.add_argument("rest", nargs=argparse.REMAINDER, help="options of that benchmark")
@@ -95,6 +123,10 @@ def _dispatch(args: argparse.Namespace) -> int:
         for name, target in sorted(known_measures().items()):
             print(f"{name:<16} {target}")
         return 0
+    if args.cmd == "replay":
+        return _replay(args)
+    if args.cmd == "eval":
+        return _eval(args)
     if args.cmd == "bench":
         module = importlib.import_module(f"hera.bench.{args.name}")
         return int(module.main(args.rest) or 0)
@@ -155,3 +187,51 @@ def _inject(args: argparse.Namespace) -> int:
     reply = replies[args.node]
     print(json.dumps(reply))
     return 0 if reply.get("ok") else 1
+
+
+def _replay(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from hera.replay import model_args_from_spec, pick_models, replay
+    from hera.spec import load_spec
+
+    spec_path = Path(args.spec) if args.spec else Path(args.recordings) / "cluster.json"
+    models = model_args_from_spec(load_spec(spec_path)) if spec_path.exists() else {}
+    wanted = args.models.split(",") if args.models else None
+    chosen = pick_models(models, wanted)
+    if not chosen:
+        raise ValueError("no models to replay: give --models or --spec (or a run dir)")
+    counts = replay(args.recordings, args.out, chosen, args.node)
+    for name, n in counts.items():
+        print(f"{name:<20} {n:>7} estimates -> {Path(args.out) / 'measures'}")
+    return 0
+
+
+def _eval(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from hera.evaluate import evaluate, format_table, plot
+
+    results = evaluate(args.run_dir, args.omega_after, args.settle)
+    if not results:
+        raise ValueError(f"no model outputs to score in {args.run_dir}")
+    if args.json:
+        print(
+            json.dumps(
+                [{"model": n, "node": node, **m} for (n, node), m in sorted(results.items())],
+                indent=1,
+            )
+        )
+    else:
+        print(format_table(results))
+    if not args.no_plots:
+        try:
+            files = plot(args.run_dir, args.plots or Path(args.run_dir) / "eval", args.node)
+            if not args.json:
+                print("plots: " + ", ".join(str(f) for f in files))
+        except ImportError:
+            print(
+                "plots skipped: matplotlib is not installed (pip install 'hera-fusion[plot]')",
+                file=sys.stderr,
+            )
+    return 0

@@ -150,7 +150,7 @@ class Node:
         except ImportError:
             return
         hosts = {g: self.spec.sync_groups()[g] for g in self.decl.sync_hosts}
-        self.sync = SyncService(self.session, self.keys, self.name, hosts, self.spec.lease_ms)
+        self.sync = SyncService(self.session, self.keys, self.name, hosts, self.spec.sync_lease_ms)
         self.sync.start()
 
     def _add_child(self, decl: MeasureDecl, start: bool = True) -> None:
@@ -206,10 +206,17 @@ class Node:
         client = self.sync.client()
         holder = f"{self.name}/{spec.name}"
 
-        def runner(fn):
-            return run_in_slot(client, spec.group, holder, spec.slot, fn, spec.period, ctx)
+        def in_slot(fn):
+            def fire(grant):
+                ctx.grant = grant  # the measure sees (and announces) the grant it runs under
+                try:
+                    return fn()
+                finally:
+                    ctx.grant = None
 
-        return runner
+            return run_in_slot(client, spec.group, holder, spec.slot, fire, spec.period)
+
+        return in_slot
 
     def _columns(self) -> dict[str, tuple[str, ...]]:
         cols = {}

@@ -66,6 +66,7 @@ class ClusterSpec:
     host: str = "127.0.0.1"
     base_port: int = 0
     lease_ms: int = DEFAULT_LEASE_MS
+    sync_lease_ms: int = 300
     world: dict[str, Any] = field(default_factory=dict)
     intensity: int = 10
     intensity_period: float = 60.0
@@ -291,6 +292,7 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
             host=str(cluster.get("host", "127.0.0.1")),
             base_port=base_port,
             lease_ms=int(cluster.get("lease_ms", DEFAULT_LEASE_MS)),
+            sync_lease_ms=int(cluster.get("sync_lease_ms", 300)),
             world=dict(table("world")),
             intensity=int(sup.get("intensity", 10)),
             intensity_period=float(sup.get("period", 60.0)),

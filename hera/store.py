@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 from hera.wire import Message
@@ -47,6 +47,7 @@ class Store:
         self._data: dict[str, dict[str, Sample]] = {}
         self._cond = threading.Condition()
         self._version = 0
+        self._listeners: tuple = ()
         self.accepted = 0
         self.stale = 0
 
@@ -64,7 +65,21 @@ class Store:
             self.accepted += 1
             self._version += 1
             self._cond.notify_all()
-            return True
+            listeners = self._listeners
+        for fn in listeners:
+            fn(sample)
+        return True
+
+    def add_listener(self, fn: Callable[[Sample], None]) -> None:
+        """Call ``fn(sample)`` for every sample accepted from now on (on the caller's thread
+        of :meth:`offer`; keep it short)."""
+        with self._cond:
+            self._listeners = (*self._listeners, fn)
+
+    def remove_listener(self, fn: Callable[[Sample], None]) -> None:
+        """Stop calling ``fn``."""
+        with self._cond:
+            self._listeners = tuple(f for f in self._listeners if f != fn)
 
     def get(self, name: str) -> list[Sample]:
         """All nodes' latest samples of ``name`` (the original's ``get(name)``), by node."""

@@ -2,109 +2,11 @@
 
 from __future__ import annotations
 
-import json
-import os
-import signal
-import subprocess
-import sys
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-
-SUPPORT = Path(__file__).parent / "support"
-
-
-def wait_for(cond: Callable[[], object], timeout: float, what: str, step: float = 0.02):
-    """Poll ``cond`` until it returns something truthy; fail naming ``what`` on timeout."""
-    deadline = time.monotonic() + timeout
-    while True:
-        value = cond()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(step)
-
-
-def cluster_env(tmp_path: Path) -> dict[str, str]:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(SUPPORT), env.get("PYTHONPATH")]))
-    env["HERA_REGISTRY"] = str(tmp_path / "registry")
-    return env
-
-
-def _descendants(pid: int) -> list[int]:
-    out = subprocess.run(["ps", "-eo", "pid=,ppid=,args="], capture_output=True, text=True)
-    return [
-        int(line.split()[0]) for line in out.stdout.splitlines() if f"--parent-pid {pid}" in line
-    ]
-
-
-class Cluster:
-    """A ``hera up`` launcher process and the client to talk to its nodes."""
-
-    def __init__(self, spec: Path, run_dir: Path, env: dict[str, str], duration: float | None):
-        self.run_dir = run_dir
-        cmd = [
-            sys.executable,
-            "-m",
-            "hera",
-            "up",
-            str(spec),
-            "--run-dir",
-            str(run_dir),
-            "--interval",
-            "0.5",
-        ]
-        if duration is not None:
-            cmd += ["--duration", str(duration)]
-        self.out = open(run_dir.parent / f"{run_dir.name}-launcher.log", "w")  # noqa: SIM115
-        self.proc = subprocess.Popen(cmd, env=env, stdout=self.out, stderr=subprocess.STDOUT)
-        self.client = None
-
-    def connect(self, timeout: float = 20.0) -> None:
-        from hera.client import ClusterClient
-
-        wait_for(lambda: (self.run_dir / "launcher.json").exists(), timeout, "launcher.json")
-        self.client = ClusterClient.from_run_dir(self.run_dir)
-        n = len(self.client.spec.nodes)
-        wait_for(lambda: len(self.client.status(0.5)) == n, timeout, f"{n} nodes answering")
-
-    def launcher_state(self) -> dict:
-        return json.loads((self.run_dir / "launcher.json").read_text())["nodes"]
-
-    def pid(self, node: str) -> int:
-        return self.status(node)["pid"]
-
-    def status(self, node: str) -> dict:
-        return self.client.query(node, "status")[node]
-
-    def control(self, node: str, verb: str, request: dict) -> dict:
-        return self.client.query(node, verb, request)[node]
-
-    def stop(self) -> None:
-        node_pids = _descendants(self.proc.pid)
-        if self.client is not None:
-            self.client.close()
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(15)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        leftovers = []
-        for pid in node_pids:
-            try:
-                os.kill(pid, signal.SIGCONT)
-                os.kill(pid, signal.SIGKILL)
-                leftovers.append(pid)
-            except ProcessLookupError:
-                pass
-        self.out.close()
-        assert not leftovers, f"node processes left behind: {leftovers}"
+from harness import Cluster, cluster_env
 
 
 @pytest.fixture

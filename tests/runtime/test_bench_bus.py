@@ -4,7 +4,7 @@ speed is shown by the benchmark, never by timed assertions)."""
 import subprocess
 import sys
 
-from conftest import cluster_env
+from harness import cluster_env
 
 
 def test_bench_bus_quick_prints_every_figure(tmp_path):

@@ -10,7 +10,7 @@ import time
 
 import msgpack
 import pytest
-from conftest import cluster_env, wait_for
+from harness import cluster_env, wait_for
 
 from hera.bus import BusConfig, open_session
 from hera.wire import encode

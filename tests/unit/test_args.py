@@ -1,7 +1,7 @@
 import time
 
 import pytest
-from conftest import wait_for
+from harness import wait_for
 
 from hera.args import ArgsStore
 from hera.bus import BusConfig, open_session, tcp_endpoint

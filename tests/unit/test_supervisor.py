@@ -6,7 +6,7 @@ import threading
 import time
 
 import pytest
-from conftest import wait_for
+from harness import wait_for
 
 from hera.args import ArgsStore
 from hera.keys import Keys

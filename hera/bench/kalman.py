@@ -1,0 +1,234 @@
+"""``hera bench kalman``: per-step (predict + update) time of hera.estimation vs FilterPy.
+
+For KF, EKF and UKF with state size n in {2, 4, 9} and measurement size m in {1, 2, 3}, the
+same model and the same measurements are run through both libraries; the time of every
+step is measured with ``time.perf_counter_ns`` and the median is reported (microseconds).
+Our timed step includes building the observation block, as a fusion model does. The
+estimation backend (numba or numpy) is printed; its one-off compile / cache-load time is
+measured first and reported separately (warm-up steps then run before any timing).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+TARGET = 3.0
+INSTALL_HINT = "pip install 'hera-fusion[bench]'"
+
+
+class _Model:
+    """The benchmark problem, identical for both libraries.
+
+    Process: a constant-velocity chain x' = F x (F = I plus dt on the superdiagonal), one
+    numpy matmul, with its constant Jacobian F. Measurements: KF, the linear H x (each row
+    sees one coordinate plus half of the next); EKF/UKF, the nonlinear h(x) = sin(x[idx])
+    of m coordinates (idx cycles when m > n) with its analytic Jacobian. The user functions
+    are cheap on purpose, so the table measures the libraries, not the models; both
+    libraries call exactly these functions the same number of times per step except that
+    our UKF redraws sigma points from the predicted state before the update (eq. 12).
+    """
+
+    def __init__(self, n: int, m: int, dt: float = 0.1) -> None:
+        rng = np.random.default_rng(1000 * n + m)
+        self.n, self.m, self.dt = n, m, dt
+        F = np.eye(n)
+        for i in range(n - 1):
+            F[i, i + 1] = dt
+        self.F = F
+        self.Q = 0.01 * dt * np.eye(n)
+        self.H = np.zeros((m, n))
+        for i in range(m):
+            self.H[i, i % n] = 1.0
+            self.H[i, (i + 1) % n] += 0.5
+        self.R = np.diag(np.linspace(0.1, 0.3, m))
+        self.var = np.diag(self.R).copy()
+        self.x0 = 0.1 * rng.normal(size=n)
+        self.P0 = 0.1 * np.eye(n)
+        self.idx = np.arange(m) % n  # measured coordinates (m may exceed n)
+        self.sel = np.zeros((m, n))  # selection matrix: sel[i, idx[i]] = 1
+        self.sel[np.arange(m), self.idx] = 1.0
+
+    def f(self, x: np.ndarray, dt: float, u=None) -> np.ndarray:
+        return self.F @ x
+
+    def f_jac(self, x: np.ndarray, dt: float, u=None) -> np.ndarray:
+        return self.F
+
+    def h(self, x: np.ndarray) -> np.ndarray:
+        return np.sin(x[self.idx])
+
+    def h_jac(self, x: np.ndarray) -> np.ndarray:
+        return self.sel * np.cos(x)  # row i: cos(x[idx[i]]) in column idx[i]
+
+    def measurements(self, steps: int) -> np.ndarray:
+        rng = np.random.default_rng(7 * self.n + self.m)
+        return rng.normal(scale=0.3, size=(steps, self.m))
+
+
+def _median_us(step: Callable[[np.ndarray], None], zs: np.ndarray, warmup: int) -> float:
+    for z in zs[:warmup]:
+        step(z)
+    clock = time.perf_counter_ns
+    times = []
+    for z in zs[warmup:]:
+        t0 = clock()
+        step(z)
+        times.append(clock() - t0)
+    return statistics.median(times) / 1000.0
+
+
+def _ours(kind: str, md: _Model) -> Callable[[np.ndarray], None]:
+    from hera.estimation import (
+        ExtendedKalmanFilter,
+        KalmanFilter,
+        Observations,
+        UnscentedKalmanFilter,
+    )
+
+    dt = md.dt
+    if kind == "KF":
+        kf = KalmanFilter(md.x0, md.P0, F=md.F, Q=md.Q)
+        H, var = md.H, md.var
+
+        def step(z: np.ndarray) -> None:
+            kf.predict(dt)
+            kf.update(Observations().add("z", z, H=H, R=var))
+
+        return step
+    if kind == "EKF":
+        ekf = ExtendedKalmanFilter(md.x0, md.P0, f=md.f, F=md.f_jac, Q=md.Q)
+        h, hj, var = md.h, md.h_jac, md.var
+
+        def step(z: np.ndarray) -> None:
+            ekf.predict(dt)
+            ekf.update(Observations().add("z", z, h=h, jacobian=hj, R=var))
+
+        return step
+    ukf = UnscentedKalmanFilter(md.x0, md.P0, f=md.f, Q=md.Q, alpha=0.5, beta=2.0, kappa=0.0)
+    h, var = md.h, md.var
+
+    def step(z: np.ndarray) -> None:
+        ukf.predict(dt)
+        ukf.update(Observations().add("z", z, h=h, R=var))
+
+    return step
+
+
+def _filterpy(kind: str, md: _Model) -> Callable[[np.ndarray], None]:
+    from filterpy.kalman import (
+        ExtendedKalmanFilter,
+        KalmanFilter,
+        MerweScaledSigmaPoints,
+        UnscentedKalmanFilter,
+    )
+
+    n, m, dt = md.n, md.m, md.dt
+    if kind == "KF":
+        kf = KalmanFilter(dim_x=n, dim_z=m)
+        kf.x, kf.P, kf.F, kf.Q, kf.H, kf.R = md.x0.copy(), md.P0.copy(), md.F, md.Q, md.H, md.R
+
+        def step(z: np.ndarray) -> None:
+            kf.predict()
+            kf.update(z)
+
+        return step
+    if kind == "EKF":
+
+        class _EKF(ExtendedKalmanFilter):
+            def predict_x(self, u=0):
+                self.x = md.f(self.x, dt)
+
+        ekf = _EKF(dim_x=n, dim_z=m)
+        ekf.x, ekf.P, ekf.Q, ekf.R = md.x0.copy(), md.P0.copy(), md.Q, md.R
+        h, hj = md.h, md.h_jac
+
+        def step(z: np.ndarray) -> None:
+            ekf.F = md.f_jac(ekf.x, dt)
+            ekf.predict()
+            ekf.update(z, hj, h)
+
+        return step
+    pts = MerweScaledSigmaPoints(n, alpha=0.5, beta=2.0, kappa=0.0)
+    ukf = UnscentedKalmanFilter(dim_x=n, dim_z=m, dt=dt, hx=md.h, fx=md.f, points=pts)
+    ukf.x, ukf.P, ukf.Q, ukf.R = md.x0.copy(), md.P0.copy(), md.Q, md.R
+
+    def step(z: np.ndarray) -> None:
+        ukf.predict()
+        ukf.update(z)
+
+    return step
+
+
+def run(steps: int, kinds: list[str], sizes: list[int], dims: list[int]) -> list[dict]:
+    """Measure every case; returns rows with the medians in microseconds."""
+    rows = []
+    warmup = max(5, steps // 10)
+    for kind in kinds:
+        for n in sizes:
+            for m in dims:
+                md = _Model(n, m)
+                zs = md.measurements(steps + warmup)
+                ours = _median_us(_ours(kind, md), zs, warmup)
+                theirs = _median_us(_filterpy(kind, md), zs, warmup)
+                rows.append(
+                    {"filter": kind, "n": n, "m": m, "ours_us": ours, "filterpy_us": theirs}
+                )
+    return rows
+
+
+def format_table(rows: list[dict]) -> str:
+    lines = [
+        f"{'filter':<6} {'n':>2} {'m':>2} {'ours us':>9} {'filterpy us':>12} {'ratio':>7}  target",
+        "-" * 52,
+    ]
+    for r in rows:
+        ratio = r["filterpy_us"] / r["ours_us"] if r["ours_us"] > 0 else float("inf")
+        ok = "met" if ratio >= TARGET else "MISSED"
+        lines.append(
+            f"{r['filter']:<6} {r['n']:>2} {r['m']:>2} {r['ours_us']:>9.1f} "
+            f"{r['filterpy_us']:>12.1f} {ratio:>7.2f}  {ok} (>= {TARGET:g}x)"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """CLI entry point (``hera bench kalman``). Returns a process exit code."""
+    ap = argparse.ArgumentParser(prog="hera bench kalman", description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", type=int, default=3000, help="timed steps per case")
+    ap.add_argument("--quick", action="store_true", help="few steps (200), rough numbers")
+    ap.add_argument("--filter", choices=["KF", "EKF", "UKF"], action="append", dest="kinds")
+    args = ap.parse_args(argv if argv is not None else sys.argv[1:])
+    try:
+        import filterpy  # noqa: F401
+    except ImportError:
+        print(
+            "hera bench kalman: FilterPy is not installed, nothing to compare with.\n"
+            f"Install it with: {INSTALL_HINT}",
+            file=sys.stderr,
+        )
+        return 2
+    steps = 200 if args.quick else max(1, args.steps)
+    kinds = args.kinds or ["KF", "EKF", "UKF"]
+    from hera.estimation import backend
+
+    t0 = time.perf_counter()
+    name = backend.backend()
+    warm = backend.warmup()
+    print(f"hera.estimation backend: {name} (one-off compile/cache load {warm:.2f} s)")
+    rows = run(steps, kinds, [2, 4, 9], [1, 2, 3])
+    print(f"Kalman filter step (predict + update), median of {steps} steps per case")
+    print(format_table(rows))
+    met = sum(r["filterpy_us"] / r["ours_us"] >= TARGET for r in rows)
+    print(f"{met} of {len(rows)} cases meet the {TARGET:g}x target")
+    print(f"total {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

@@ -1,0 +1,83 @@
+"""hera.estimation: Kalman filters (KF, EKF, UKF) on variadic observation blocks.
+
+A fusion model builds one block per sample present this step (thesis listing 4.1)::
+
+    obs = Observations()
+    obs.add("gyro", [gz], H=H_gyro, R=0.005)
+    obs.add("sonar1", [r1], h=range_to(p1), jacobian=range_jac(p1), R=0.0625)
+    ekf.predict(dt)
+    result = ekf.update(obs, gate=0.999)   # result.accepted, result.rejected, result.nis
+
+Backends: with numba installed (``hera-fusion[fast]``) the hot path runs compiled kernels,
+else numpy; ``HERA_ESTIMATION_BACKEND=numpy|numba|auto`` or ``set_backend`` chooses,
+``active_backend()`` tells, ``warmup()`` compiles/loads the kernels up front.
+"""
+
+from . import backend
+from .backend import active_backend, set_backend, warmup
+from .correction import linearised_update
+from .ekf import ExtendedKalmanFilter
+from .gating import chi2_cdf, chi2_ppf, chi2_sf, gate_threshold
+from .health import HealthMonitor, NisStats
+from .kalman import KalmanFilter
+from .numerics import (
+    CovarianceError,
+    NonFiniteInputError,
+    assert_positive_definite,
+    joseph_update,
+    numerical_jacobian,
+    symmetrise,
+)
+from .observations import Block, Observations
+from .orientation import (
+    align_sign,
+    angle_residual,
+    matrix_to_quat,
+    nearest_branch,
+    quat_conjugate,
+    quat_multiply,
+    quat_normalize,
+    quat_omega,
+    quat_to_matrix,
+    wrap_angle,
+)
+from .results import BlockOutcome, UpdateResult
+from .ukf import MerweSigmaPoints, UnscentedKalmanFilter
+
+__all__ = [
+    "active_backend",
+    "backend",
+    "set_backend",
+    "warmup",
+    "Block",
+    "BlockOutcome",
+    "CovarianceError",
+    "ExtendedKalmanFilter",
+    "HealthMonitor",
+    "KalmanFilter",
+    "MerweSigmaPoints",
+    "NisStats",
+    "NonFiniteInputError",
+    "Observations",
+    "UnscentedKalmanFilter",
+    "UpdateResult",
+    "align_sign",
+    "angle_residual",
+    "assert_positive_definite",
+    "chi2_cdf",
+    "chi2_ppf",
+    "chi2_sf",
+    "gate_threshold",
+    "joseph_update",
+    "linearised_update",
+    "matrix_to_quat",
+    "nearest_branch",
+    "numerical_jacobian",
+    "quat_conjugate",
+    "quat_multiply",
+    "quat_normalize",
+    "quat_omega",
+    "quat_to_matrix",
+    "symmetrise",
+    "wrap_angle",
+]

@@ -1,0 +1,165 @@
+"""Variadic observations (thesis listing 4.1).
+
+A fusion model builds one :class:`Block` per sample that is present in this step and hands
+the :class:`Observations` to ``update``; the filter stacks whatever blocks exist. Blocks of
+different sizes mix freely, and no block at all means "predict only" (``update`` is a no-op).
+
+Each block carries: ``z`` (vector), either a linear ``H`` or a function ``h(x)`` (with an
+optional Jacobian ``jacobian(x)``; a central-difference Jacobian is used otherwise), ``R``
+(a scalar variance, a vector of variances, or a full covariance matrix), an optional
+``residual(z, hx)`` (e.g. angle wrapping, thesis eq. 6.7), and a ``label`` used in results,
+errors and health statistics. Labels should be unique within one step.
+
+Building is cheap: inputs are converted to float64 arrays once, shapes are checked with
+integer comparisons, and the finiteness of the values is checked later by the filter,
+before anything touches its state.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = ["Block", "Observations"]
+
+_F64 = np.float64
+_F64T = np.dtype(np.float64)  # dtypes are singletons: ``a.dtype is _F64T`` is a fast test
+_ND = np.ndarray
+
+
+def _vec(z: Any) -> np.ndarray:
+    if type(z) is np.ndarray and z.dtype == _F64 and z.ndim == 1:
+        return z
+    if isinstance(z, float | int):
+        return np.array((z,), dtype=_F64)
+    return np.asarray(z, dtype=_F64).reshape(-1)
+
+
+class Block:
+    """One observation block (one sensor sample). See the module docstring.
+
+    Attributes: ``label``, ``z`` (m,), ``H`` (m, n) or None, ``h``, ``jacobian``,
+    ``var`` (m,) variances when R is diagonal else None, ``R`` (m, m) full covariance or None
+    (``cov()`` always gives the matrix), ``residual``, ``dim`` (= m).
+    """
+
+    __slots__ = ("H", "R", "dim", "h", "jacobian", "label", "residual", "var", "vectorized", "z")
+
+    def __init__(
+        self,
+        label: str,
+        z: Any,
+        R: Any,
+        H: Any = None,
+        h: Callable[[np.ndarray], Any] | None = None,
+        jacobian: Callable[[np.ndarray], Any] | None = None,
+        residual: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+        vectorized: bool = False,
+    ) -> None:
+        # Fast paths first (float64 ndarrays of the right rank, float R): this runs once per
+        # sensor sample, so every numpy call here counts.
+        zv = z if type(z) is _ND and z.ndim == 1 and z.dtype is _F64T else _vec(z)
+        m = zv.shape[0]
+        if (H is None) == (h is None):
+            raise ValueError(f"block {label!r}: give exactly one of H (linear) or h (function)")
+        if H is not None:
+            Hm = H if type(H) is _ND and H.dtype is _F64T else np.asarray(H, dtype=_F64)
+            if Hm.ndim == 1:
+                Hm = Hm.reshape(1, -1)
+            if Hm.ndim != 2 or Hm.shape[0] != m:
+                raise ValueError(f"block {label!r}: H has shape {Hm.shape}, z has {m} rows")
+            H = Hm
+        var = None
+        cov = None
+        if type(R) is _ND and R.ndim == 1 and R.dtype is _F64T:
+            var = R
+            if R.shape[0] != m:
+                raise ValueError(f"block {label!r}: {R.shape[0]} variances for {m} rows")
+        elif isinstance(R, float | int):
+            if not R > 0:
+                raise ValueError(f"block {label!r}: variance R must be > 0, got {R!r}")
+            var = np.full(m, float(R)) if m > 1 else np.array((float(R),))
+        else:
+            Rm = R if type(R) is _ND and R.dtype is _F64T else np.asarray(R, dtype=_F64)
+            if Rm.ndim <= 1:
+                var = Rm.reshape(-1)
+                if var.shape[0] != m:
+                    raise ValueError(f"block {label!r}: {var.shape[0]} variances for {m} rows")
+            elif Rm.shape == (m, m):
+                cov = Rm
+            else:
+                raise ValueError(f"block {label!r}: R has shape {Rm.shape}, expected ({m}, {m})")
+        self.label = label
+        self.z = zv
+        self.H = H
+        self.h = h
+        self.jacobian = jacobian
+        self.var = var
+        self.R = cov
+        self.residual = residual
+        self.dim = m
+        self.vectorized = vectorized
+
+    def cov(self) -> np.ndarray:
+        """The block's measurement covariance as an (m, m) matrix."""
+        return self.R if self.R is not None else np.diag(self.var)
+
+    def __repr__(self) -> str:
+        kind = "H" if self.H is not None else "h"
+        return f"Block({self.label!r}, dim={self.dim}, {kind})"
+
+
+class Observations:
+    """An ordered, variadic set of observation blocks for one filter step (thesis listing
+    4.1). ``add`` returns self so calls chain; an empty set means predict only."""
+
+    __slots__ = ("blocks",)
+
+    def __init__(self, blocks: Sequence[Block] | None = None) -> None:
+        self.blocks: list[Block] = list(blocks) if blocks else []
+
+    def add(
+        self,
+        label: str,
+        z: Any,
+        *,
+        R: Any,
+        H: Any = None,
+        h: Callable[[np.ndarray], Any] | None = None,
+        jacobian: Callable[[np.ndarray], Any] | None = None,
+        residual: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+        vectorized: bool = False,
+    ) -> Observations:
+        """Append one block. ``R``: variance (scalar), variances (vector) or covariance
+        (matrix), in the squared units of ``z``. ``vectorized=True`` promises that ``h``
+        also accepts a (N, n) batch of states and returns (N, m) (used by the UKF)."""
+        self.blocks.append(Block(label, z, R, H, h, jacobian, residual, vectorized))
+        return self
+
+    def append(self, block: Block) -> Observations:
+        """Append a prebuilt :class:`Block`."""
+        self.blocks.append(block)
+        return self
+
+    @property
+    def dim(self) -> int:
+        """Total number of stacked rows."""
+        return sum(b.dim for b in self.blocks)
+
+    @property
+    def labels(self) -> list[str]:
+        return [b.label for b in self.blocks]
+
+    def __len__(self) -> int:
+        return len(self.blocks)
+
+    def __bool__(self) -> bool:
+        return bool(self.blocks)
+
+    def __iter__(self) -> Iterator[Block]:
+        return iter(self.blocks)
+
+    def __repr__(self) -> str:
+        return f"Observations({self.blocks!r})"

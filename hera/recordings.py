@@ -1,0 +1,103 @@
+"""Recordings in the original Hera CSV layout: read them back as samples, write new ones.
+
+A recording folder holds ``measures/<name>_<node>.csv`` (or the CSVs directly): no header,
+rows ``seq,timestamp_ms,v1,v2,...`` with millisecond timestamps from any origin (the
+original's monotonic clock, or our epoch milliseconds). Node names may contain ``_``; the
+name is everything before the last ``_`` that leaves a known input name, else before the
+last ``_``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Iterable
+from pathlib import Path
+
+from hera.store import Sample
+
+
+class RecordingError(ValueError):
+    """A recording that cannot be read; the message names the file and row."""
+
+
+def measures_dir(folder: str | Path) -> Path:
+    """``folder/measures`` if it exists, else ``folder`` itself."""
+    folder = Path(folder)
+    sub = folder / "measures"
+    return sub if sub.is_dir() else folder
+
+
+def split_stem(stem: str, names: Iterable[str] = ()) -> tuple[str, str]:
+    """``(name, node)`` of a file stem ``<name>_<node>`` (see module docstring)."""
+    for name in sorted(names, key=len, reverse=True):
+        if stem.startswith(name + "_") and len(stem) > len(name) + 1:
+            return name, stem[len(name) + 1 :]
+    if "_" not in stem:
+        raise RecordingError(f"{stem}.csv: expected <name>_<node>.csv")
+    name, _, node = stem.rpartition("_")
+    return name, node
+
+
+def read_csv(path: Path, name: str, node: str) -> list[Sample]:
+    """Every row of one CSV as samples (t in seconds); RecordingError on a bad row."""
+    out = []
+    with open(path, newline="") as f:
+        for i, row in enumerate(csv.reader(f), start=1):
+            if not row or not "".join(row).strip():
+                continue
+            try:
+                seq, ts = int(row[0]), float(row[1])
+                values = tuple(float(v) for v in row[2:])
+            except (ValueError, IndexError):
+                raise RecordingError(
+                    f"{path}:{i}: expected seq,timestamp_ms,values...: {','.join(row)[:80]!r}"
+                ) from None
+            if not (math.isfinite(ts) and all(math.isfinite(v) for v in values)):
+                raise RecordingError(f"{path}:{i}: non-finite number")
+            out.append(Sample(name, node, seq, ts / 1000.0, 0.0, 0.0, values))
+    return out
+
+
+def read_recordings(
+    folder: str | Path, names: Iterable[str] | None = None, known: Iterable[str] = ()
+) -> list[Sample]:
+    """Every sample of the recordings in ``folder`` whose name is in ``names`` (all if
+    None), sorted by (time, name, node, seq)."""
+    d = measures_dir(folder)
+    files = sorted(d.glob("*.csv"))
+    if not files:
+        raise RecordingError(f"no <name>_<node>.csv recordings in {d}")
+    wanted = None if names is None else set(names)
+    out: list[Sample] = []
+    for path in files:
+        name, node = split_stem(path.stem, [*(wanted or ()), *known])
+        if wanted is None or name in wanted:
+            out.extend(read_csv(path, name, node))
+    out.sort(key=lambda s: (s.t, s.name, s.node, s.seq))
+    return out
+
+
+class CsvWriter:
+    """Writes one (name, node) output in the same layout, with a columns sidecar."""
+
+    def __init__(self, folder: str | Path, name: str, node: str, columns: Iterable[str]):
+        d = Path(folder) / "measures"
+        d.mkdir(parents=True, exist_ok=True)
+        self.path = d / f"{name}_{node}.csv"
+        (d / f"{name}_{node}.columns.json").write_text(
+            json.dumps(
+                {"name": name, "node": node, "columns": ["seq", "timestamp [ms]", *columns]},
+                indent=1,
+            )
+        )
+        self._f = open(self.path, "w", buffering=1)  # noqa: SIM115 - closed in close()
+        self.seq = 0
+
+    def write(self, t: float, values: Iterable[float]) -> None:
+        self.seq += 1
+        self._f.write(f"{self.seq},{round(t * 1000.0, 3)!r},{','.join(map(repr, values))}\n")
+
+    def close(self) -> None:
+        self._f.close()

@@ -1,0 +1,256 @@
+"""The Pmod NAV measures of the thesis: ``nav``, ``mag`` and ``nav3`` (REFERENCE table).
+
+All read a board through :class:`hera.nodes.driver.NavDriver` (the simulator by default) and
+calibrate once: the result is stored in the replicated args store under
+``calib/<node>/<measure>`` and read back first, so a restarted measure does not recalibrate.
+Measures of one node naming the same ``board`` share one board.
+
+Common args: ``board`` (default "nav"), ``model`` (a :class:`hera.nodes.imu_model.NavModel`
+table), ``seed`` (int), ``truth`` (bool: record the ground truth under ``<run_dir>/truth``),
+``calib_samples`` (int).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+from hera.nodes import boards
+from hera.nodes import geometry as gm
+from hera.nodes.calibration import (
+    calibrate_mag,
+    calibrate_nav,
+    calibrate_nav3,
+    heading,
+    is_vec,
+    rotate_y,
+    stored_or_run,
+)
+from hera.nodes.driver import NavDriver, NoReading
+from hera.nodes.sim_nav import SimNavBoard
+from hera.nodes.truth import TruthRecorder, want_truth
+from hera.nodes.world import G, State, state_at
+
+from hera.measure import Measure, MeasureContext, Reading
+
+_COMMON_ARGS = frozenset({"board", "model", "seed", "truth", "calib_samples"})
+
+
+def _check_args(name: str, args: Mapping[str, Any], allowed: frozenset[str]) -> None:
+    unknown = set(args) - allowed
+    if unknown:
+        raise ValueError(
+            f"measure {name!r}: unknown args {sorted(unknown)}; known: {sorted(allowed)}"
+        )
+
+
+def _positive_int(args: Mapping[str, Any], key: str, default: int) -> int:
+    v = args.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+        raise ValueError(f"arg {key!r} must be a positive integer, got {v!r}")
+    return v
+
+
+def _yaw(q: gm.Quat) -> float:
+    w, x, y, z = q
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+class _NavMeasure(Measure):
+    """Shared set-up: the board, the truth recorder."""
+
+    extra_args: ClassVar[frozenset[str]] = frozenset()
+    truth_columns: ClassVar[tuple[str, ...]] = ()
+
+    board: NavDriver
+    _truth: TruthRecorder | None = None
+
+    def _setup(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
+        super().init(args, ctx)
+        _check_args(ctx.spec.name, args, _COMMON_ARGS | self.extra_args)
+        self.board = boards.open_nav(ctx, args)
+        self._truth = None
+        if want_truth(args, ctx.run_dir):
+            self._truth = TruthRecorder(
+                ctx.run_dir,  # type: ignore[arg-type]
+                ctx.spec.name,
+                ctx.node,
+                self.truth_columns,
+                ctx.world,
+            )
+        elif args.get("truth"):
+            ctx.log.warning("truth asked but there is no run directory: not recorded")
+
+    def _state(self, t: float) -> State | None:
+        b = self.board
+        if not isinstance(b, SimNavBoard):
+            return None
+        return state_at(b.scenario, b.epoch, t)
+
+    def close(self) -> None:
+        if self._truth is not None:
+            self._truth.close()
+            self._truth = None
+
+
+class Nav(_NavMeasure):
+    """The train IMU: ``[a_y [m/s^2], g_z [rad/s]]``.
+
+    Bias removal and tilt correction as thesis ch. 3.2.1: subtract the still means (acc
+    including gravity, gyro), rotate about y by the tilt found from gravity (eqs. 3.7-3.11),
+    then a_y * 9.81 and g_z * pi / 180. Calibration: mean of ``calib_samples`` (500) still
+    samples. In the train scenario a_y is the centripetal acceleration r omega^2 and g_z the
+    angular rate omega (thesis eqs. 6.1, 6.4).
+    """
+
+    name = "nav"
+    period = 0.05
+    columns = ("a_y [m/s^2]", "g_z [rad/s]")
+    truth_columns = ("true a_y [m/s^2]", "true g_z [rad/s]")
+
+    def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
+        self._setup(args, ctx)
+        n = _positive_int(args, "calib_samples", 500)
+        cal = stored_or_run(
+            ctx,
+            lambda: calibrate_nav(self.board, n),
+            lambda c: (
+                isinstance(c, Mapping)
+                and is_vec(c.get("acc"))
+                and is_vec(c.get("gyro"))
+                and is_vec([c.get("sin_tilt")], 1)
+            ),
+        )
+        self.acc0: gm.Vec3 = tuple(cal["acc"])  # type: ignore[assignment]
+        self.gyro0: gm.Vec3 = tuple(cal["gyro"])  # type: ignore[assignment]
+        self.sin_tilt = float(cal["sin_tilt"])
+
+    def measure(self) -> Reading | None:
+        try:
+            s = self.board.read_imu(mag=False)
+        except NoReading:
+            self.ctx.count("dropouts")
+            return None
+        a = rotate_y(gm.sub(s.acc, self.acc0), self.sin_tilt)
+        w = rotate_y(gm.sub(s.gyro, self.gyro0), self.sin_tilt)
+        if self._truth is not None:
+            st = self._state(s.t)
+            if st is not None:
+                lin = gm.unrotate(st.orientation, st.acceleration)
+                self._truth.write(st, (lin[1], st.angular_rate[2]))
+        return Reading((a[1] * G, w[2] * math.pi / 180.0), s.t)
+
+
+class Mag(_NavMeasure):
+    """Heading from the magnetometer: ``[heading [rad]]`` in [-pi, pi).
+
+    heading = -wrap(atan2(m_y - b_y, m_x - b_x) - offset) (thesis eq. 6.6), counter-clockwise
+    like the train's theta and the gyro's g_z in our z-up board frame: in the train scenario it
+    equals theta. Arg ``clockwise = true`` gives the original formula's sign (a compass
+    heading). Calibration (thesis ch. 6.6): hard-iron (b_x, b_y) from two means of
+    ``calib_samples`` (10) readings 180 deg apart, then ``offset`` = the raw angle in the
+    scenario's "0 deg" pose.
+    """
+
+    name = "mag"
+    period = 0.3
+    columns = ("heading [rad]",)
+    extra_args = frozenset({"clockwise"})
+    truth_columns = ("true heading [rad]",)
+
+    def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
+        self._setup(args, ctx)
+        clockwise = args.get("clockwise", False)
+        if not isinstance(clockwise, bool):
+            raise ValueError(f"arg 'clockwise' must be true or false, got {clockwise!r}")
+        self.sign = 1.0 if clockwise else -1.0
+        n = _positive_int(args, "calib_samples", 10)
+        cal = stored_or_run(
+            ctx,
+            lambda: calibrate_mag(self.board, n=n),
+            lambda c: (
+                isinstance(c, Mapping) and is_vec(c.get("bias"), 2) and is_vec([c.get("offset")], 1)
+            ),
+        )
+        self.bias = (float(cal["bias"][0]), float(cal["bias"][1]))
+        self.offset = float(cal["offset"])
+        b = self.board
+        self._yaw0 = _yaw(b.scenario.rest_motion().orientation) if isinstance(b, SimNavBoard) else 0
+
+    def measure(self) -> Reading | None:
+        try:
+            s = self.board.read_imu(mag=True)
+        except NoReading:
+            self.ctx.count("dropouts")
+            return None
+        m = s.mag
+        assert m is not None
+        h = gm.wrap_angle(self.sign * heading(m[0], m[1], self.bias, self.offset))
+        if self._truth is not None:
+            st = self._state(s.t)
+            if st is not None:
+                true_h = gm.wrap_angle(_yaw(st.orientation) - self._yaw0)
+                self._truth.write(st, (true_h if self.sign < 0 else gm.wrap_angle(-true_h),))
+        return Reading((h,), s.t)
+
+
+class Nav3(_NavMeasure):
+    """The 9-axis IMU: acc (m/s^2, specific force), gyro (rad/s, bias removed), mag (gauss,
+    hard-iron removed), all in the right-handed board frame (x forward, y left, z up; flat and
+    still reads acc (0, 0, +9.81)): down is -acc. Calibration (thesis ch. 7.1.1): gyro mean of
+    ``calib_samples`` (300) still samples; 3-D hard iron by turns of 180 deg about z then x.
+    """
+
+    name = "nav3"
+    period = 0.1
+    columns = (
+        "acc_x [m/s^2]",
+        "acc_y [m/s^2]",
+        "acc_z [m/s^2]",
+        "gyro_x [rad/s]",
+        "gyro_y [rad/s]",
+        "gyro_z [rad/s]",
+        "mag_x [gauss]",
+        "mag_y [gauss]",
+        "mag_z [gauss]",
+    )
+
+    def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
+        self._setup(args, ctx)
+        n = _positive_int(args, "calib_samples", 300)
+        cal = stored_or_run(
+            ctx,
+            lambda: calibrate_nav3(self.board, n_gyro=n),
+            lambda c: isinstance(c, Mapping) and is_vec(c.get("gyro")) and is_vec(c.get("mag")),
+        )
+        self.gyro0: gm.Vec3 = tuple(cal["gyro"])  # type: ignore[assignment]
+        self.mag0: gm.Vec3 = tuple(cal["mag"])  # type: ignore[assignment]
+
+    def measure(self) -> Reading | None:
+        try:
+            s = self.board.read_imu(mag=True)
+        except NoReading:
+            self.ctx.count("dropouts")
+            return None
+        m = s.mag
+        assert m is not None
+        k = math.pi / 180.0
+        g0 = self.gyro0
+        b = self.mag0
+        values = (
+            s.acc[0] * G,
+            s.acc[1] * G,
+            s.acc[2] * G,
+            (s.gyro[0] - g0[0]) * k,
+            (s.gyro[1] - g0[1]) * k,
+            (s.gyro[2] - g0[2]) * k,
+            m[0] - b[0],
+            m[1] - b[1],
+            m[2] - b[2],
+        )
+        if self._truth is not None:
+            st = self._state(s.t)
+            if st is not None:
+                self._truth.write(st)
+        return Reading(values, s.t)

@@ -1,0 +1,571 @@
+"""The simulated world: motions that are pure functions of time, and the fixed things in it.
+
+Every node process builds the same scenario from the spec's ``[world]`` table (``ctx.world``)
+and evaluates it at ``tau = t - epoch`` (``t`` epoch seconds, ``epoch`` shared through the
+spec), so all processes agree on the truth without talking.
+
+World table keys common to every scenario:
+
+- ``scenario``: one of :data:`SCENARIOS` (default ``"still"``);
+- ``epoch``: epoch seconds of ``tau = 0`` (the launcher fills it with the cluster start);
+- ``target_radius`` / ``target_length``: the shape the sonars see (a capsule of that radius
+  whose axis, of that length, lies along the body x axis);
+- magnetic field and altitude (see :class:`Environment`).
+
+Scenario parameters (all optional, SI units, angles in rad unless the key says ``_deg``):
+
+- ``still``: ``position`` [x, y, z], ``yaw``;
+- ``train`` (thesis ch. 6.1): ``center`` [x, y], ``radius`` (0.6 m), ``omega`` (0.84 rad/s,
+  positive = counter-clockwise), ``phase`` (start angle, 0), ``height`` (0);
+- ``rail`` (thesis ch. 3.2/3.4, fig. A.1): ``start`` [x, y, z], ``axis`` [x, y, z],
+  ``length`` (1.1 m), ``period`` (8 s) - back and forth ``start -> start + length * axis``;
+- ``hand`` (thesis app. D): ``center``, ``period`` (1.25 s), ``amplitude`` (4 m/s^2, of the
+  acceleration) - a circle without rotating the board;
+- ``target3d`` (thesis ch. 7.2): ``center`` [x, y, z] (1, 1, 1), ``amplitude`` (0.5 m),
+  ``period`` (6 s per back-and-forth) - along x, then y, then z, repeating;
+- ``rotation_slow`` / ``rotation_fast`` (thesis ch. 7.1.3): ``axis`` (z), ``duration``
+  (12 s / 2 s per 360 deg turn), ``rest`` (2 s still between turns), ``position``;
+- ``shaking`` (thesis ch. 7.1.3): ``position``, ``amplitude`` (0.03 m), ``frequency`` (3 Hz)
+  - shaking without rotation.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from hera.nodes import geometry as g
+from hera.nodes.geometry import IDENTITY, ZERO, Quat, Vec3
+
+G = 9.81
+"""Gravity (m/s^2), the value the original measures convert with (REFERENCE: a_y * 9.81)."""
+
+
+@dataclass(frozen=True, slots=True)
+class State:
+    """The true motion of the sensed body at one time.
+
+    ``t`` epoch s; ``position`` m, ``velocity`` m/s, ``acceleration`` m/s^2 (world frame);
+    ``orientation`` the body-to-world unit quaternion (w, x, y, z); ``angular_rate`` rad/s in
+    the body frame (what an ideal gyroscope measures).
+    """
+
+    t: float
+    position: Vec3
+    velocity: Vec3
+    acceleration: Vec3
+    orientation: Quat
+    angular_rate: Vec3
+
+    def as_row(self) -> list[float]:
+        """The 16 numbers of :data:`STATE_COLUMNS`, in order."""
+        return [
+            *self.position,
+            *self.velocity,
+            *self.acceleration,
+            *self.orientation,
+            *self.angular_rate,
+        ]
+
+
+STATE_COLUMNS = (
+    "x [m]",
+    "y [m]",
+    "z [m]",
+    "vx [m/s]",
+    "vy [m/s]",
+    "vz [m/s]",
+    "ax [m/s^2]",
+    "ay [m/s^2]",
+    "az [m/s^2]",
+    "qw",
+    "qx",
+    "qy",
+    "qz",
+    "wx [rad/s]",
+    "wy [rad/s]",
+    "wz [rad/s]",
+)
+
+
+@dataclass(frozen=True, slots=True)
+class Motion:
+    """Kinematics at ``tau`` seconds after the epoch (a :class:`State` without the time)."""
+
+    position: Vec3
+    velocity: Vec3 = ZERO
+    acceleration: Vec3 = ZERO
+    orientation: Quat = IDENTITY
+    angular_rate: Vec3 = ZERO
+
+
+@dataclass(frozen=True, slots=True)
+class Target:
+    """What a sonar sees: a capsule of ``radius`` around a segment of ``length`` along body x.
+
+    Defaults come from the scenario (train: 0.5 m long, thesis ch. 6.3 "sigma_d = 0.25, half
+    the length of the train"; others: a GRiSP board on its support, about 10 cm, thesis
+    ch. 7.2).
+    """
+
+    radius: float = 0.05
+    length: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class SonarMount:
+    """Where a sonar sits and where it points (world frame, unit ``direction``)."""
+
+    position: Vec3
+    direction: Vec3
+
+
+@dataclass(frozen=True, slots=True)
+class Environment:
+    """Earth's magnetic field and the air pressure reference.
+
+    World keys: ``mag_horizontal`` (0.205 gauss), ``mag_vertical`` (0.44 gauss, pointing
+    down), ``mag_north_deg`` (90: magnetic north along world +y), ``altitude`` (100 m above
+    sea level at z = 0), ``sea_level_hpa`` (1013.25). Defaults: the World Magnetic Model
+    near Louvain-la-Neuve, where the thesis was written (total about 0.485 gauss,
+    inclination about 65 deg; rounded).
+    """
+
+    mag_horizontal: float = 0.205
+    mag_vertical: float = 0.44
+    mag_north: float = math.pi / 2.0
+    altitude: float = 100.0
+    sea_level_hpa: float = 1013.25
+
+    @property
+    def field(self) -> Vec3:
+        """Earth's field in the world frame (gauss)."""
+        h = self.mag_horizontal
+        return (h * math.cos(self.mag_north), h * math.sin(self.mag_north), -self.mag_vertical)
+
+    def pressure(self, z: float) -> float:
+        """Barometric pressure (hPa) at world height ``z`` m (international standard
+        atmosphere, troposphere: p = p0 (1 - 2.25577e-5 h)^5.25588)."""
+        h = self.altitude + z
+        return self.sea_level_hpa * (1.0 - 2.25577e-5 * h) ** 5.25588
+
+
+class Scenario:
+    """A motion that is a pure function of ``tau`` (seconds since the epoch)."""
+
+    kind: str = "still"
+    target: Target = Target()
+    vibration_acc: float = 0.0
+    """Std of the vibration the vehicle adds to an accelerometer (m/s^2, white)."""
+    vibration_gyro: float = 0.0
+    """Std of the vibration the vehicle adds to a gyroscope (rad/s, white)."""
+
+    def motion(self, tau: float) -> Motion:
+        raise NotImplementedError
+
+    def rest_motion(self) -> Motion:
+        """The pose in which boards are calibrated, still: the scenario's "0 deg" pose."""
+        m = self.motion(0.0)
+        return Motion(position=m.position, orientation=m.orientation)
+
+    def default_sonars(self) -> tuple[SonarMount, ...]:
+        """Sonar placements used when a sonar measure names none (index = ``sonar`` arg)."""
+        return (SonarMount((0.0, -1.0, 0.0), (0.0, 1.0, 0.0)),)
+
+
+class Still(Scenario):
+    kind = "still"
+
+    def __init__(self, position: Vec3 = ZERO, yaw: float = 0.0) -> None:
+        self._m = Motion(position=position, orientation=g.yaw(yaw))
+
+    def motion(self, tau: float) -> Motion:
+        return self._m
+
+    def default_sonars(self) -> tuple[SonarMount, ...]:
+        p = self._m.position
+        return (SonarMount((p[0], p[1] - 1.0, p[2]), (0.0, 1.0, 0.0)),)
+
+
+class Train(Scenario):
+    """A toy train on a circle (thesis ch. 6.1): theta = phase + omega tau (thesis eq. 6.8),
+    position center + radius (cos theta, sin theta); the board faces the direction of travel
+    (x forward, y towards the centre when omega > 0)."""
+
+    kind = "train"
+    target = Target(radius=0.05, length=0.5)
+    # Thesis eq. 6.1 / fig. C.1: sigma_ac^2 = 0.8 (m/s^2)^2 measured on the running train,
+    # dominated by vibrations; eq. 6.4 / fig. C.3: sigma_g^2 = 0.005 (rad/s)^2.
+    vibration_acc = math.sqrt(0.8)
+    vibration_gyro = math.sqrt(0.005)
+
+    def __init__(
+        self,
+        center: tuple[float, float] = (0.0, 0.0),
+        radius: float = 0.6,
+        omega: float = 0.84,
+        phase: float = 0.0,
+        height: float = 0.0,
+    ) -> None:
+        if radius <= 0:
+            raise ValueError(f"train radius must be > 0 m, got {radius!r}")
+        self.center, self.radius, self.omega = center, radius, omega
+        self.phase, self.height = phase, height
+        self._turn = math.copysign(math.pi / 2.0, omega) if omega else math.pi / 2.0
+
+    def motion(self, tau: float) -> Motion:
+        th = self.phase + self.omega * tau
+        return self._at(th, self.omega)
+
+    def _at(self, th: float, w: float) -> Motion:
+        c, s, r = math.cos(th), math.sin(th), self.radius
+        return Motion(
+            position=(self.center[0] + r * c, self.center[1] + r * s, self.height),
+            velocity=(-r * w * s, r * w * c, 0.0),
+            acceleration=(-r * w * w * c, -r * w * w * s, 0.0),
+            orientation=g.yaw(th + self._turn),
+            angular_rate=(0.0, 0.0, w),
+        )
+
+    def rest_motion(self) -> Motion:
+        m = self._at(0.0, 0.0)  # the train stopped at theta = 0 ("place at 0 deg")
+        return Motion(position=m.position, orientation=m.orientation)
+
+    def default_sonars(self) -> tuple[SonarMount, ...]:
+        cx, cy = self.center
+        d = self.radius + 0.9
+        return (
+            SonarMount((cx - 0.3, cy - d, self.height), (0.0, 1.0, 0.0)),
+            SonarMount((cx + 0.3, cy - d, self.height), (0.0, 1.0, 0.0)),
+        )
+
+
+class Rail(Scenario):
+    """Back and forth on a rail (thesis ch. 3.2, 3.4, fig. A.1):
+    p = start + length (1 - cos(2 pi tau / period)) / 2 * axis; no rotation, x along the rail."""
+
+    kind = "rail"
+
+    def __init__(
+        self,
+        start: Vec3 = (0.5, 0.0, 0.0),
+        axis: Vec3 = (1.0, 0.0, 0.0),
+        length: float = 1.1,
+        period: float = 8.0,
+    ) -> None:
+        if period <= 0:
+            raise ValueError(f"rail period must be > 0 s, got {period!r}")
+        self.start, self.axis, self.length, self.period = start, g.unit(axis), length, period
+        self._q = g.yaw(math.atan2(self.axis[1], self.axis[0]))
+
+    def motion(self, tau: float) -> Motion:
+        k = 2.0 * math.pi / self.period
+        half = self.length / 2.0
+        p = half * (1.0 - math.cos(k * tau))
+        v = half * k * math.sin(k * tau)
+        a = half * k * k * math.cos(k * tau)
+        return Motion(
+            position=g.add(self.start, g.scale(self.axis, p)),
+            velocity=g.scale(self.axis, v),
+            acceleration=g.scale(self.axis, a),
+            orientation=self._q,
+        )
+
+    def default_sonars(self) -> tuple[SonarMount, ...]:
+        back = g.sub(self.start, g.scale(self.axis, 0.5))
+        return (SonarMount(back, self.axis),)
+
+
+class Hand(Scenario):
+    """A hand moving a board on a circle without turning it (thesis app. D, eq. D.1-D.4):
+    period 1.25 s, acceleration amplitude A = 4 m/s^2, so radius A / omega^2."""
+
+    kind = "hand"
+
+    def __init__(
+        self, center: Vec3 = (0.0, 0.0, 0.0), period: float = 1.25, amplitude: float = 4.0
+    ) -> None:
+        if period <= 0:
+            raise ValueError(f"hand period must be > 0 s, got {period!r}")
+        self.center = center
+        self.omega = 2.0 * math.pi / period
+        self.radius = amplitude / self.omega**2
+
+    def motion(self, tau: float) -> Motion:
+        w, r = self.omega, self.radius
+        c, s = math.cos(w * tau), math.sin(w * tau)
+        return Motion(
+            position=(self.center[0] + r * c, self.center[1] + r * s, self.center[2]),
+            velocity=(-r * w * s, r * w * c, 0.0),
+            acceleration=(-r * w * w * c, -r * w * w * s, 0.0),
+        )
+
+    def default_sonars(self) -> tuple[SonarMount, ...]:
+        cx, cy, cz = self.center
+        return (
+            SonarMount((cx - 0.3, cy - 1.0, cz), (0.0, 1.0, 0.0)),
+            SonarMount((cx + 0.3, cy - 1.0, cz), (0.0, 1.0, 0.0)),
+        )
+
+
+class Target3D(Scenario):
+    """A target moved back and forth along x, then y, then z (thesis ch. 7.2, fig. 7.11):
+    on the active axis p = center + amplitude (1 - cos(2 pi tau' / period)) / 2."""
+
+    kind = "target3d"
+
+    def __init__(
+        self, center: Vec3 = (1.0, 1.0, 1.0), amplitude: float = 0.5, period: float = 6.0
+    ) -> None:
+        if period <= 0:
+            raise ValueError(f"target3d period must be > 0 s, got {period!r}")
+        self.center, self.amplitude, self.period = center, amplitude, period
+
+    def motion(self, tau: float) -> Motion:
+        leg = math.floor(tau / self.period)
+        axis = int(leg) % 3
+        k = 2.0 * math.pi / self.period
+        ph = k * (tau - leg * self.period)
+        half = self.amplitude / 2.0
+        p, v, a = [0.0] * 3, [0.0] * 3, [0.0] * 3
+        p[axis] = half * (1.0 - math.cos(ph))
+        v[axis] = half * k * math.sin(ph)
+        a[axis] = half * k * k * math.cos(ph)
+        return Motion(
+            position=g.add(self.center, (p[0], p[1], p[2])),
+            velocity=(v[0], v[1], v[2]),
+            acceleration=(a[0], a[1], a[2]),
+        )
+
+    def default_sonars(self) -> tuple[SonarMount, ...]:
+        x, y, z = self.center
+        return (
+            SonarMount((0.0, y, z), (1.0, 0.0, 0.0)),
+            SonarMount((x, 0.0, z), (0.0, 1.0, 0.0)),
+            SonarMount((x, y, 0.0), (0.0, 0.0, 1.0)),
+        )
+
+
+class Rotation(Scenario):
+    """360 deg turns about a fixed axis with rests between them (thesis ch. 7.1.3).
+
+    Within a turn of ``duration`` s, s = (tau_c - rest) / duration and the angle is
+    2 pi (s - sin(2 pi s) / (2 pi)): the rate starts and ends at zero.
+    """
+
+    kind = "rotation"
+
+    def __init__(
+        self,
+        duration: float = 12.0,
+        rest: float = 2.0,
+        axis: Vec3 = (0.0, 0.0, 1.0),
+        position: Vec3 = ZERO,
+    ) -> None:
+        if duration <= 0 or rest < 0:
+            raise ValueError("rotation duration must be > 0 s and rest >= 0 s")
+        self.duration, self.rest, self.axis, self.position = duration, rest, g.unit(axis), position
+
+    def motion(self, tau: float) -> Motion:
+        cycle = self.rest + self.duration
+        n = math.floor(tau / cycle)
+        tc = tau - n * cycle
+        angle, rate = 2.0 * math.pi * n, 0.0
+        if tc > self.rest:
+            s = (tc - self.rest) / self.duration
+            angle += 2.0 * math.pi * s - math.sin(2.0 * math.pi * s)
+            rate = 2.0 * math.pi / self.duration * (1.0 - math.cos(2.0 * math.pi * s))
+        return Motion(
+            position=self.position,
+            orientation=g.axis_angle(self.axis, angle),
+            angular_rate=g.scale(self.axis, rate),
+        )
+
+    def default_sonars(self) -> tuple[SonarMount, ...]:
+        p = self.position
+        return (SonarMount((p[0], p[1] - 1.0, p[2]), (0.0, 1.0, 0.0)),)
+
+
+class Shaking(Scenario):
+    """Shaking without rotation (thesis ch. 7.1.3): p = position + amplitude *
+    (sin(2 pi f tau), sin(2 pi 0.77 f tau) / 2, 0)."""
+
+    kind = "shaking"
+
+    def __init__(
+        self, position: Vec3 = ZERO, amplitude: float = 0.03, frequency: float = 3.0
+    ) -> None:
+        self.position, self.amplitude, self.frequency = position, amplitude, frequency
+
+    def motion(self, tau: float) -> Motion:
+        w1 = 2.0 * math.pi * self.frequency
+        w2 = 0.77 * w1
+        a1, a2 = self.amplitude, self.amplitude / 2.0
+        return Motion(
+            position=g.add(self.position, (a1 * math.sin(w1 * tau), a2 * math.sin(w2 * tau), 0)),
+            velocity=(a1 * w1 * math.cos(w1 * tau), a2 * w2 * math.cos(w2 * tau), 0.0),
+            acceleration=(
+                -a1 * w1 * w1 * math.sin(w1 * tau),
+                -a2 * w2 * w2 * math.sin(w2 * tau),
+                0.0,
+            ),
+        )
+
+    def default_sonars(self) -> tuple[SonarMount, ...]:
+        p = self.position
+        return (SonarMount((p[0], p[1] - 1.0, p[2]), (0.0, 1.0, 0.0)),)
+
+
+SCENARIOS = (
+    "still",
+    "train",
+    "rail",
+    "hand",
+    "target3d",
+    "rotation_slow",
+    "rotation_fast",
+    "shaking",
+)
+
+_COMMON = {
+    "scenario",
+    "epoch",
+    "seed",
+    "target_radius",
+    "target_length",
+    "vibration_acc",
+    "vibration_gyro",
+    "mag_horizontal",
+    "mag_vertical",
+    "mag_north_deg",
+    "altitude",
+    "sea_level_hpa",
+    "sonars",
+}
+
+
+def _f(world: Mapping[str, Any], key: str, default: float) -> float:
+    value = world.get(key, default)
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"world {key!r} must be a number, got {value!r}") from None
+    if not math.isfinite(out):
+        raise ValueError(f"world {key!r} must be finite, got {value!r}")
+    return out
+
+
+def _v(world: Mapping[str, Any], key: str, default: tuple[float, ...]) -> tuple[float, ...]:
+    value = world.get(key, default)
+    try:
+        out = tuple(float(x) for x in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"world {key!r} must be a list of numbers, got {value!r}") from None
+    if len(out) != len(default):
+        raise ValueError(f"world {key!r} must have {len(default)} numbers, got {value!r}")
+    return out
+
+
+_PARAMS: dict[str, set[str]] = {
+    "still": {"position", "yaw"},
+    "train": {"center", "radius", "omega", "phase", "height"},
+    "rail": {"start", "axis", "length", "period"},
+    "hand": {"center", "period", "amplitude"},
+    "target3d": {"center", "amplitude", "period"},
+    "rotation_slow": {"duration", "rest", "axis", "position"},
+    "rotation_fast": {"duration", "rest", "axis", "position"},
+    "shaking": {"position", "amplitude", "frequency"},
+}
+
+
+def make_scenario(world: Mapping[str, Any]) -> Scenario:
+    """Build the scenario a ``[world]`` table describes; ValueError on unknown names/keys."""
+    kind = world.get("scenario", "still")
+    if kind not in _PARAMS:
+        raise ValueError(f"unknown world scenario {kind!r}; choose one of {SCENARIOS}")
+    unknown = set(world) - _COMMON - _PARAMS[kind]
+    if unknown:
+        raise ValueError(
+            f"unknown world keys for scenario {kind!r}: {sorted(unknown)}; "
+            f"allowed: {sorted(_PARAMS[kind] | _COMMON)}"
+        )
+    w = world
+    sc: Scenario
+    if kind == "still":
+        sc = Still(_v(w, "position", ZERO), _f(w, "yaw", 0.0))  # type: ignore[arg-type]
+    elif kind == "train":
+        sc = Train(
+            _v(w, "center", (0.0, 0.0)),  # type: ignore[arg-type]
+            _f(w, "radius", 0.6),
+            _f(w, "omega", 0.84),
+            _f(w, "phase", 0.0),
+            _f(w, "height", 0.0),
+        )
+    elif kind == "rail":
+        sc = Rail(
+            _v(w, "start", (0.5, 0.0, 0.0)),  # type: ignore[arg-type]
+            _v(w, "axis", (1.0, 0.0, 0.0)),  # type: ignore[arg-type]
+            _f(w, "length", 1.1),
+            _f(w, "period", 8.0),
+        )
+    elif kind == "hand":
+        sc = Hand(_v(w, "center", ZERO), _f(w, "period", 1.25), _f(w, "amplitude", 4.0))  # type: ignore[arg-type]
+    elif kind == "target3d":
+        sc = Target3D(
+            _v(w, "center", (1.0, 1.0, 1.0)),  # type: ignore[arg-type]
+            _f(w, "amplitude", 0.5),
+            _f(w, "period", 6.0),
+        )
+    elif kind in ("rotation_slow", "rotation_fast"):
+        sc = Rotation(
+            _f(w, "duration", 12.0 if kind == "rotation_slow" else 2.0),
+            _f(w, "rest", 2.0),
+            _v(w, "axis", (0.0, 0.0, 1.0)),  # type: ignore[arg-type]
+            _v(w, "position", ZERO),  # type: ignore[arg-type]
+        )
+    else:
+        sc = Shaking(_v(w, "position", ZERO), _f(w, "amplitude", 0.03), _f(w, "frequency", 3.0))  # type: ignore[arg-type]
+    sc.kind = kind
+    if "target_radius" in w or "target_length" in w:
+        sc.target = Target(
+            radius=_f(w, "target_radius", sc.target.radius),
+            length=_f(w, "target_length", sc.target.length),
+        )
+    if "vibration_acc" in w:
+        sc.vibration_acc = _f(w, "vibration_acc", 0.0)
+    if "vibration_gyro" in w:
+        sc.vibration_gyro = _f(w, "vibration_gyro", 0.0)
+    return sc
+
+
+def environment(world: Mapping[str, Any]) -> Environment:
+    """The magnetic field and pressure reference of a ``[world]`` table."""
+    return Environment(
+        mag_horizontal=_f(world, "mag_horizontal", 0.205),
+        mag_vertical=_f(world, "mag_vertical", 0.44),
+        mag_north=math.radians(_f(world, "mag_north_deg", 90.0)),
+        altitude=_f(world, "altitude", 100.0),
+        sea_level_hpa=_f(world, "sea_level_hpa", 1013.25),
+    )
+
+
+def epoch_of(world: Mapping[str, Any]) -> float:
+    """The shared epoch (epoch seconds) of a world table; 0.0 if absent."""
+    return _f(world, "epoch", 0.0)
+
+
+def state_at(scenario: Scenario, epoch: float, t: float) -> State:
+    """The :class:`State` of ``scenario`` at epoch time ``t``."""
+    m = scenario.motion(t - epoch)
+    return State(t, m.position, m.velocity, m.acceleration, m.orientation, m.angular_rate)
+
+
+def truth_at(world: Mapping[str, Any], t: float) -> State:
+    """The true state of the world table's scenario at epoch time ``t`` (pure function).
+
+    Scoring code: ``truth_at(spec.world, sample.t)``; for many calls build the scenario
+    once with :func:`make_scenario` and use :func:`state_at`.
+    """
+    return state_at(make_scenario(world), epoch_of(world), t)

@@ -1,0 +1,116 @@
+"""The per-node entry point of the sync service: :class:`SyncService`."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import zenoh
+from hera.sync.client import SyncClient
+from hera.sync.election import Timing
+from hera.sync.group import GroupHost
+
+from hera.keys import Keys, check_chunk
+
+DEFAULT_LEASE_MS = 300
+
+
+def _normalise(host_groups: Mapping[str, Iterable[str]] | Iterable[Any]) -> dict[str, list[str]]:
+    if isinstance(host_groups, Mapping):
+        items = list(host_groups.items())
+    else:
+        items = []
+        for entry in host_groups:
+            if isinstance(entry, Mapping):
+                items.append((entry["group"], entry["hosts"]))
+            else:
+                group, hosts = entry
+                items.append((group, hosts))
+    out: dict[str, list[str]] = {}
+    for group, hosts in items:
+        check_chunk(group, "sync group")
+        if isinstance(hosts, str):
+            raise ValueError(f"sync group {group!r}: hosts must be a list of node names")
+        names = [check_chunk(h, "node name") for h in hosts]
+        if not names or len(set(names)) != len(names):
+            raise ValueError(f"sync group {group!r}: hosts must be non-empty and distinct")
+        if group in out:
+            raise ValueError(f"sync group {group!r} listed twice")
+        out[group] = names
+    return out
+
+
+class SyncService:
+    """The sync service of one node: hosts its groups, and is every local measure's client.
+
+    ``host_groups`` maps each group this node hosts to the full list of the group's host
+    nodes (the majority is counted over that list), e.g. ``{"sonar": ["s1", "s2", "s3"]}``;
+    a list of ``(group, hosts)`` pairs is accepted too, and an empty one for a node that
+    hosts nothing. ``lease_ms`` is the leader lease L (how long a majority confirmation
+    lets a leader grant); ``max_slot_ms`` the longest slot lease (default L / 2, the most
+    allowed). A new leader grants nothing for L + max_slot + 50 ms after its election.
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        keys: Keys,
+        node: str,
+        host_groups: Mapping[str, Iterable[str]] | Iterable[Any] = (),
+        lease_ms: int = DEFAULT_LEASE_MS,
+        max_slot_ms: int | None = None,
+        margin_ms: int = 50,
+    ) -> None:
+        check_chunk(node, "node name")
+        lease = lease_ms / 1000.0
+        max_slot = (max_slot_ms / 1000.0) if max_slot_ms is not None else lease / 2
+        self.timing = Timing(lease=lease, max_slot=max_slot, margin=margin_ms / 1000.0)
+        self.node = node
+        self.keys = keys
+        self.session = session
+        groups = _normalise(host_groups)
+        for group, hosts in groups.items():
+            if node not in hosts:
+                raise ValueError(f"sync group {group!r}: node {node!r} not among hosts {hosts}")
+        self.hosts: dict[str, GroupHost] = {
+            g: GroupHost(session, keys, g, node, hosts, self.timing) for g, hosts in groups.items()
+        }
+        self._client = SyncClient(session, keys, self.timing)
+        self._lock = threading.Lock()
+        self._started = False
+        self._closed = False
+
+    def start(self) -> None:
+        """Start hosting every group (idempotent)."""
+        with self._lock:
+            if self._started or self._closed:
+                return
+            self._started = True
+            for h in self.hosts.values():
+                h.start()
+
+    def close(self) -> None:
+        """Stop hosting; call before closing the session (idempotent)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        for h in self.hosts.values():
+            h.close()
+
+    def client(self) -> SyncClient:
+        """The :class:`hera.measure.SlotClient` for this node's measures."""
+        return self._client
+
+    def status(self) -> dict[str, Any]:
+        """JSON-able: timing, each hosted group's state, and this node's measures' waits."""
+        t = self.timing
+        return {
+            "node": self.node,
+            "lease_ms": round(t.lease * 1e3, 3),
+            "max_slot_ms": round(t.max_slot * 1e3, 3),
+            "new_leader_wait_ms": round(t.wait * 1e3, 3),
+            "groups": {g: h.status() for g, h in self.hosts.items()},
+            "client": self._client.status(),
+        }

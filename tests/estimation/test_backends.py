@@ -1,0 +1,329 @@
+"""The compiled (numba) backend equals the numpy path to 1e-12 and fails the same way.
+
+Every test runs the same problem twice, once per backend, and compares. The numpy path is
+always tested (the rest of this folder runs on whichever backend ``HERA_ESTIMATION_BACKEND``
+selects; CI runs the folder with both); the comparisons need numba and skip without it.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+from hera.estimation import (
+    CovarianceError,
+    ExtendedKalmanFilter,
+    KalmanFilter,
+    NonFiniteInputError,
+    Observations,
+    UnscentedKalmanFilter,
+    backend,
+    linearised_update,
+)
+from hera.estimation import correction as corr
+
+TOL = {"rtol": 1e-12, "atol": 1e-12}
+
+
+@pytest.fixture
+def use():
+    """use(name) switches the backend for the rest of the test; restored afterwards."""
+    before = backend.backend()
+    yield backend.set_backend
+    backend.set_backend(before)
+
+
+@pytest.fixture
+def numba_kernels():
+    pytest.importorskip("numba")
+    return True
+
+
+def _spd(rng, n, scale=1.0):
+    A = rng.normal(size=(n, n))
+    return scale * (A @ A.T / n + np.eye(n))
+
+
+def _obs(rng, n, sizes, kinds, full_R=False):
+    """Blocks of the given sizes; kinds cycles over 'H' (linear), 'J' (h with Jacobian),
+    'N' (h, numerical Jacobian), 'W' (linear with a residual function)."""
+    obs = Observations()
+    for i, m in enumerate(sizes):
+        C = rng.normal(size=(m, n))
+        var = rng.uniform(0.2, 1.0, size=m)
+        R = np.diag(var) if full_R else var
+        z = rng.normal(size=m)
+        kind = kinds[i % len(kinds)]
+        if kind == "H":
+            obs.add(f"b{i}", z, H=C, R=R)
+        elif kind == "J":
+            obs.add(
+                f"b{i}",
+                z,
+                h=lambda x, C=C: np.tanh(C @ x),
+                jacobian=lambda x, C=C: (1.0 - np.tanh(C @ x) ** 2)[:, None] * C,
+                R=R,
+            )
+        elif kind == "N":
+            obs.add(f"b{i}", z, h=lambda x, C=C: np.sin(C @ x), R=R)
+        else:
+            obs.add(f"b{i}", z, H=C, R=R, residual=lambda a, b: a - b)
+    return obs
+
+
+def _both(use, fn):
+    use("numpy")
+    ref = fn()
+    use("numba")
+    got = fn()
+    return ref, got
+
+
+def _same_result(ra, rb, rtol=1e-10):
+    assert [(o.label, o.dim, o.accepted, o.threshold) for o in ra.outcomes] == [
+        (o.label, o.dim, o.accepted, o.threshold) for o in rb.outcomes
+    ]
+    np.testing.assert_allclose(
+        [o.nis for o in ra.outcomes], [o.nis for o in rb.outcomes], rtol=rtol, atol=1e-12
+    )
+
+
+def test_backend_switch(use):
+    assert use("numpy") == "numpy" and backend.backend() == "numpy"
+    assert backend.warmup() == 0.0
+    with pytest.raises(ValueError, match="unknown estimation backend"):
+        use("cuda")
+    name = use("auto")
+    assert name in ("numba", "numpy")
+
+
+def test_kernel_protocol_matches(numba_kernels):
+    from hera.estimation import kernels_numba as kn
+
+    assert (kn.ALL_REJECTED, kn.MODE_HX, kn.MODE_GIVEN) == (corr.ALL_REJECTED, 1, 2)
+    assert (corr._MODE_HX, corr._MODE_GIVEN, corr._DIAG, corr._JOSEPH, corr._SEQUENTIAL) == (
+        kn.MODE_HX,
+        kn.MODE_GIVEN,
+        kn.DIAG,
+        kn.JOSEPH,
+        kn.SEQUENTIAL,
+    )
+
+
+@pytest.mark.parametrize("n", [1, 2, 4, 9])
+@pytest.mark.parametrize(
+    "sizes,kinds",
+    [
+        ((1,), "H"),
+        ((2,), "J"),
+        ((3,), "N"),
+        ((3,), "W"),
+        ((4,), "H"),
+        ((1, 2), "HJ"),
+        ((3, 1, 2), "HNJ"),
+        ((2, 2, 3), "WHJ"),
+    ],
+)
+@pytest.mark.parametrize("joseph", [True, False])
+@pytest.mark.parametrize("method", ["auto", "joint", "sequential"])
+def test_linearised_update_matches_numpy(use, numba_kernels, n, sizes, kinds, joseph, method):
+    rng = np.random.default_rng(n * 1000 + sum(sizes) * 10 + len(kinds))
+    x, P = rng.normal(size=n), _spd(rng, n)
+    obs = _obs(rng, n, sizes, kinds)
+    (xa, Pa, ra), (xb, Pb, rb) = _both(
+        use, lambda: linearised_update(x, P, obs.blocks, None, joseph, method)
+    )
+    np.testing.assert_allclose(xb, xa, **TOL)
+    np.testing.assert_allclose(Pb, Pa, **TOL)
+    assert np.array_equal(Pb, Pb.T)
+    _same_result(ra, rb)
+
+
+@pytest.mark.parametrize("full_R", [False, True])
+@pytest.mark.parametrize("sizes", [(1,), (3,), (1, 2, 2), (2, 3)])
+@pytest.mark.parametrize("offset", [0.0, 3.0, 50.0])
+def test_gated_update_matches_numpy(use, numba_kernels, full_R, sizes, offset):
+    """Some, all or none of the blocks gated out (outliers added to every second block)."""
+    n = 4
+    rng = np.random.default_rng(len(sizes) * 7 + int(offset))
+    x, P = rng.normal(size=n), _spd(rng, n, 0.1)
+    obs = _obs(rng, n, sizes, "HJ", full_R=full_R)
+    for i, b in enumerate(obs.blocks):
+        if i % 2 == 0:
+            b.z = b.z + offset
+    method = "joint" if full_R else "auto"
+    (xa, Pa, ra), (xb, Pb, rb) = _both(
+        use, lambda: linearised_update(x, P, obs.blocks, 0.99, True, method)
+    )
+    _same_result(ra, rb)
+    np.testing.assert_allclose(xb, xa, **TOL)
+    np.testing.assert_allclose(Pb, Pa, **TOL)
+    if not ra.updated:
+        assert xb is x and Pb is P
+
+
+def _run_kf(use, n, with_u, joseph, steps=25):
+    rng = np.random.default_rng(n)
+    F = np.eye(n) + 0.1 * rng.normal(size=(n, n))
+    Q = _spd(rng, n, 0.01)
+    B = rng.normal(size=(n, 2))
+    H = rng.normal(size=(2, n))
+    zs = rng.normal(size=(steps, 2))
+    us = rng.normal(size=(steps, 2))
+
+    def run():
+        kf = KalmanFilter(np.zeros(n), np.eye(n), F=F, Q=Q, B=B if with_u else None)
+        kf.joseph = joseph
+        out = []
+        for z, u in zip(zs, us, strict=True):
+            kf.predict(0.1, u if with_u else None)
+            r = kf.update(Observations().add("z", z, H=H, R=[0.3, 0.5]), gate=0.999)
+            out.append((kf.x.copy(), kf.P.copy(), r))
+        kf.predict(0.1, F=F.T.copy(), Q=2 * Q)
+        out.append((kf.x.copy(), kf.P.copy(), None))
+        return out
+
+    return _both(use, run)
+
+
+@pytest.mark.parametrize("n", [1, 2, 4, 9])
+@pytest.mark.parametrize("with_u", [False, True])
+@pytest.mark.parametrize("joseph", [True, False])
+def test_kf_trajectory_matches_numpy(use, numba_kernels, n, with_u, joseph):
+    ref, got = _run_kf(use, n, with_u, joseph)
+    for (xa, Pa, ra), (xb, Pb, rb) in zip(ref, got, strict=True):
+        np.testing.assert_allclose(xb, xa, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(Pb, Pa, rtol=1e-10, atol=1e-12)
+        if ra is not None:
+            _same_result(ra, rb)
+
+
+@pytest.mark.parametrize("n", [2, 4, 9])
+def test_ekf_trajectory_matches_numpy(use, numba_kernels, n):
+    rng = np.random.default_rng(10 + n)
+    A = np.eye(n) + 0.05 * rng.normal(size=(n, n))
+    Q = _spd(rng, n, 0.01)
+    zs = rng.normal(size=(20, 2))
+
+    def f(x, dt, u):
+        return A @ x + 0.01 * np.sin(x)
+
+    def fj(x, dt, u):
+        return A + np.diag(0.01 * np.cos(x))
+
+    def h(x):
+        return np.array([math.hypot(x[0], 1.0), x[-1] ** 2])
+
+    def hj(x):
+        J = np.zeros((2, n))
+        J[0, 0] = x[0] / math.hypot(x[0], 1.0)
+        J[1, -1] += 2 * x[-1]
+        return J
+
+    def run():
+        out = []
+        for F in (fj, None):  # analytic and numerical process Jacobians
+            ekf = ExtendedKalmanFilter(0.1 * np.ones(n), np.eye(n), f=f, F=F, Q=Q)
+            for z in zs if F is not None else zs[:4]:  # see the tolerance note below
+                ekf.predict(0.1)
+                r = ekf.update(Observations().add("r", z, h=h, jacobian=hj, R=0.2))
+                out.append((ekf.x.copy(), ekf.P.copy(), r, F is None))
+        return out
+
+    ref, got = _both(use, run)
+    for (xa, Pa, ra, fd), (xb, Pb, rb, _) in zip(ref, got, strict=True):
+        # A central-difference Jacobian (step ~6e-6) amplifies roundoff-level differences
+        # of x by ~1e5 on the next step; the kernels themselves agree to 1e-12.
+        tol = {"rtol": 1e-8, "atol": 1e-10} if fd else {"rtol": 1e-10, "atol": 1e-12}
+        np.testing.assert_allclose(xb, xa, **tol)
+        np.testing.assert_allclose(Pb, Pa, **tol)
+        _same_result(ra, rb, tol["rtol"])
+
+
+@pytest.mark.parametrize("n", [2, 4, 9])
+@pytest.mark.parametrize("sizes", [(1,), (3,), (2, 1)])
+@pytest.mark.parametrize("gate", [None, 0.99])
+@pytest.mark.parametrize("full_R", [False, True])
+def test_ukf_trajectory_matches_numpy(use, numba_kernels, n, sizes, gate, full_R):
+    rng = np.random.default_rng(100 + n + len(sizes))
+    A = np.eye(n) + 0.05 * rng.normal(size=(n, n))
+    Q = _spd(rng, n, 0.01)
+    Cs = [rng.normal(size=(m, n)) for m in sizes]
+    zs = [rng.normal(size=sum(sizes)) for _ in range(15)]
+    zs[5] = zs[5] + 40.0  # an outlier step (gated out when gating is on)
+
+    def run():
+        ukf = UnscentedKalmanFilter(
+            np.zeros(n),
+            np.eye(n),
+            f=lambda x, dt, u: A @ x + 0.01 * np.sin(x),
+            Q=Q,
+            alpha=0.5,
+            gate=gate,
+        )
+        out = []
+        for z in zs:
+            ukf.predict(0.1)
+            obs = Observations()
+            o = 0
+            for i, C in enumerate(Cs):
+                m = C.shape[0]
+                R = np.diag(np.full(m, 0.4)) if full_R else 0.4
+                obs.add(f"s{i}", z[o : o + m], h=lambda x, C=C: np.tanh(C @ x), R=R)
+                o += m
+            r = ukf.update(obs)
+            out.append((ukf.x.copy(), ukf.P.copy(), r))
+        return out
+
+    ref, got = _both(use, run)
+    for (xa, Pa, ra), (xb, Pb, rb) in zip(ref, got, strict=True):
+        np.testing.assert_allclose(xb, xa, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(Pb, Pa, rtol=1e-10, atol=1e-12)
+        _same_result(ra, rb)
+
+
+@pytest.mark.parametrize("name", ["numpy", "numba"])
+@pytest.mark.parametrize("bad", ["z", "R", "H", "h"])
+def test_nonfinite_rejected_state_unchanged(use, name, bad):
+    if name == "numba":
+        pytest.importorskip("numba")
+    use(name)
+    n = 3
+    kf = KalmanFilter(np.ones(n), np.eye(n), F=np.eye(n), Q=0.1 * np.eye(n))
+    x0, P0 = kf.x.copy(), kf.P.copy()
+    z, R, H = np.ones(2), np.ones(2), np.ones((2, n))
+    if bad == "z":
+        z = np.array([1.0, np.nan])
+    elif bad == "R":
+        R = np.array([1.0, np.inf])
+    elif bad == "H":
+        H = H.copy()
+        H[1, 2] = np.nan
+    obs = Observations()
+    if bad == "h":
+        obs.add("s", z, h=lambda x: np.array([x[0], np.nan]), R=R)
+    else:
+        obs.add("s", z, H=H, R=R)
+    with pytest.raises(NonFiniteInputError) as ei:
+        kf.update(obs)
+    assert ei.value.label == "s"
+    np.testing.assert_array_equal(kf.x, x0)
+    np.testing.assert_array_equal(kf.P, P0)
+
+
+@pytest.mark.parametrize("name", ["numpy", "numba"])
+def test_bad_covariance_and_foreign_arrays(use, name):
+    if name == "numba":
+        pytest.importorskip("numba")
+    use(name)
+    ukf = UnscentedKalmanFilter(np.zeros(2), np.eye(2), f=lambda x, dt, u: x, Q=np.eye(2))
+    ukf.P = np.array([[1.0, 2.0], [2.0, 1.0]])  # not PD
+    with pytest.raises(CovarianceError):
+        ukf.predict(0.1)
+    # Arrays the user swapped in (other dtype / layout) still work (numpy fallback).
+    kf = KalmanFilter(np.zeros(3), np.eye(3), F=np.eye(3), Q=np.eye(3))
+    kf.P = np.asfortranarray(2.0 * np.eye(3))[:, :]
+    kf.x = np.arange(3)  # integers
+    kf.predict(0.1)
+    kf.update(Observations().add("z", [1.0], H=np.array([[1, 0, 0]]), R=1.0))
+    assert kf.P[0, 0] == pytest.approx(3.0 - 9.0 / 4.0)
