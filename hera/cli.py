@@ -61,6 +61,12 @@ def _parser() -> argparse.ArgumentParser:
         "--spec", help="spec giving the models' parameters (default: the recordings' cluster.json)"
     )
     rp.add_argument("--node", default="replay", help="node name of the outputs")
+    rp.add_argument(
+        "--start-like",
+        metavar="NODE",
+        help="start each model where NODE's live "
+        "model gave its first estimate (to compare a replay with a live node)",
+    )
 
     ev = sub.add_parser("eval", help="score a run's estimates against the truth")
     ev.add_argument("run_dir")
@@ -201,7 +207,14 @@ def _replay(args: argparse.Namespace) -> int:
     chosen = pick_models(models, wanted)
     if not chosen:
         raise ValueError("no models to replay: give --models or --spec (or a run dir)")
-    counts = replay(args.recordings, args.out, chosen, args.node)
+    start = None
+    if args.start_like:
+        from hera.replay import first_estimates
+
+        start = first_estimates(args.recordings, args.start_like)
+        if not start:
+            raise ValueError(f"no live estimates of node {args.start_like!r} in the recordings")
+    counts = replay(args.recordings, args.out, chosen, args.node, start)
     for name, n in counts.items():
         print(f"{name:<20} {n:>7} estimates -> {Path(args.out) / 'measures'}")
     return 0

@@ -148,8 +148,21 @@ class FusionMeasure(Measure):
         changed = False
         for s in samples:
             changed |= self.model.process(s)
+        self._report(len(samples))
         est = self.model.estimate() if changed else None
         return None if est is None else Reading(est[1], est[0])
+
+    def _report(self, fused: int) -> None:
+        """Status counters: samples fused, dropped (backlog), and the model's own counters
+        (integer attributes such as ``late``, ``rejected``)."""
+        c = self.ctx.counters
+        c["fused"] = c.get("fused", 0) + fused
+        if self._inbox is not None:
+            c["dropped"] = self._inbox.dropped
+        for key in ("late", "out_of_order", "rejected", "beam_edge", "direction_fixes", "misses"):
+            value = getattr(self.model, key, None)
+            if isinstance(value, int):
+                c[key] = value
 
     def close(self) -> None:
         if self._inbox is not None:

@@ -94,9 +94,24 @@ class Launcher:
         self.out = out or sys.stdout
         self.interval = interval
         self.nodes = {n.name: NodeProc(n.name) for n in spec.nodes}
+        self.models = self._models()
         self.stopping = threading.Event()
         self._logs: dict[str, IO[bytes]] = {}
         self.registry_file = registry_dir() / f"{spec.name}.json"
+
+    def _models(self) -> dict[str, tuple[str, ...]]:
+        """Fusion measures of the spec and their output columns (for the estimates panel).
+        Loading every measure also checks, before anything starts, that each one exists."""
+        from hera.fusion import FusionMeasure
+        from hera.plugins import find_measure
+
+        out = {}
+        for n in self.spec.nodes:
+            for m in n.measures:
+                cls = find_measure(m.use)  # UnknownMeasure lists the known ones
+                if issubclass(cls, FusionMeasure):
+                    out[m.name] = tuple(cls.columns)
+        return out
 
     # -- process management -------------------------------------------------------------
     def _spawn(self, np: NodeProc) -> None:
@@ -226,11 +241,23 @@ class Launcher:
             self._say(f"status query failed: {e}")
         launcher = {n: p.info() for n, p in self.nodes.items()}
         text = render_status(self.spec.name, status, launcher, uptime, str(self.run_dir))
+        if self.models and status:
+            text += "\n\n" + self._estimates(client, status)
         if self.out.isatty():
             self.out.write("\x1b[H\x1b[2J" + text + "\n")
         else:
             self.out.write(text + "\n")
         self.out.flush()
+
+    def _estimates(self, client: ClusterClient, status: dict) -> str:
+        from hera.estimates_view import render_estimates
+
+        node = self.spec.log_node if self.spec.log_node in status else sorted(status)[0]
+        try:
+            reply = client.query(node, "store", {}, timeout=0.5).get(node, {})
+        except Exception as e:  # the view must never take the launcher down
+            return f"estimates: query failed ({e})"
+        return render_estimates(self.models, reply.get("samples", []), self.spec.world)
 
     def _stop_all(self) -> None:
         procs = [p.proc for p in self.nodes.values() if p.proc is not None]

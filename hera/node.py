@@ -80,6 +80,7 @@ class Node:
     # -- life cycle ---------------------------------------------------------------------
     def start(self) -> None:
         """Join the bus, recover state from peers and start the measures."""
+        self._select_estimation_backend()
         others = [tcp_endpoint(self.spec.host, n.port) for n in self.spec.nodes if n.port]
         me = self.spec.endpoint(self.name)
         bus = BusConfig(
@@ -114,6 +115,18 @@ class Node:
             s.declare_queryable(self.keys.ctl(self.name, "*"), self._on_control, complete=True)
         )
         log.info("node %s up on %s with %d measures", self.name, me, len(self.decl.measures))
+
+    def _select_estimation_backend(self) -> None:
+        """Nodes fuse on numpy unless the spec asks for numba ([cluster] estimation_backend):
+        at sensor rates a numpy step costs well under a millisecond, while numba compiles
+        its kernels for seconds at first use. With numba they are compiled (or loaded from
+        numba's cache) here, before any measure runs, so no first step stalls."""
+        from hera import estimation
+
+        estimation.set_backend(self.spec.estimation_backend)
+        spent = estimation.warmup()
+        if spent:
+            log.info("estimation kernels ready in %.2f s", spent)
 
     def _recover(self) -> None:
         """Wait briefly for live peers, then fetch args and this node's latest seqs."""
@@ -437,6 +450,7 @@ class Node:
                 "seq": self._seq.get(cid, 0),
                 "steps": st.steps if st else 0,
                 "published": st.published if st else 0,
+                "empty": st.empty if st else 0,
                 "rate_hz": round(st.rate(now), 2) if st else 0.0,
                 "jitter_ms": {k: round(v, 3) for k, v in st.jitter_ms().items()} if st else {},
                 "overruns": st.overruns if st else 0,

@@ -34,14 +34,32 @@ def model_args_from_spec(spec: ClusterSpec) -> dict[str, tuple[str, dict[str, An
     return out
 
 
+def first_estimates(recordings: str | Path, node: str) -> dict[str, float]:
+    """Time (epoch s) of the first estimate of each model that ``node`` logged live."""
+    from hera.recordings import measures_dir, read_csv
+
+    out = {}
+    for path in measures_dir(recordings).glob(f"*_{node}.csv"):
+        rows = read_csv(path, path.stem[: -len(node) - 1], node)
+        if rows:
+            out[rows[0].name] = rows[0].t
+    return out
+
+
 def replay(
     recordings: str | Path,
     out: str | Path,
     models: Mapping[str, tuple[str, Mapping[str, Any]]],
     node: str = "replay",
+    start: Mapping[str, float] | None = None,
 ) -> dict[str, int]:
     """Run each model (name -> (measure use, model params)) over ``recordings``; write its
-    estimates to ``out``; return the number of estimates per model."""
+    estimates to ``out``; return the number of estimates per model.
+
+    ``start`` (model name -> epoch s) starts a model at that time instead of at the first
+    sample, e.g. where a live model began (see :func:`first_estimates`): a model fed from
+    the same first sample follows the same path as the live one.
+    """
     instances = {}
     for name, (use, params) in models.items():
         cls = find_measure(use)
@@ -54,9 +72,10 @@ def replay(
     counts = {}
     for name, model in instances.items():
         writer = CsvWriter(out, name, node, model.columns)
+        t_start = (start or {}).get(name, float("-inf"))
         try:
             for s in samples:
-                if s.name in model.inputs and model.process(s):
+                if s.t >= t_start and s.name in model.inputs and model.process(s):
                     t, values = model.estimate()
                     writer.write(t, values)
         finally:

@@ -67,6 +67,7 @@ class ClusterSpec:
     base_port: int = 0
     lease_ms: int = DEFAULT_LEASE_MS
     sync_lease_ms: int = 300
+    estimation_backend: str = "numpy"
     world: dict[str, Any] = field(default_factory=dict)
     intensity: int = 10
     intensity_period: float = 60.0
@@ -282,6 +283,9 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
     log_node = logging_t.get("node")
     if log_node is not None and log_node not in per_node:
         raise fail("[logging] node", f"{log_node!r} is not a node of the spec")
+    backend = cluster.get("estimation_backend", "numpy")
+    if backend not in ("numpy", "numba", "auto"):
+        raise fail("[cluster] estimation_backend", "must be numpy, numba or auto")
     strategy = sup.get("strategy", "one_for_one")
     if strategy not in ("one_for_one", "one_for_all", "rest_for_one"):
         raise fail("[supervisor] strategy", "must be one_for_one, one_for_all or rest_for_one")
@@ -293,6 +297,7 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
             base_port=base_port,
             lease_ms=int(cluster.get("lease_ms", DEFAULT_LEASE_MS)),
             sync_lease_ms=int(cluster.get("sync_lease_ms", 300)),
+            estimation_backend=backend,
             world=dict(table("world")),
             intensity=int(sup.get("intensity", 10)),
             intensity_period=float(sup.get("period", 60.0)),

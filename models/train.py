@@ -73,7 +73,8 @@ class TrainTracker:
     ([x, y] m).
 
     Parameters (all optional): ``rung``; ``radius`` (m, the known radius of e4-e7, the
-    initial one of e8-e9: 1.0 as in the original); ``center`` [x, y] (m);
+    initial one of e8-e9: 1.0 as in the original), ``radius_var0`` (m^2, its initial
+    variance in e8-e9: 1.0 as in the original); ``center`` [x, y] (m);
     ``var_acc`` 0.8 (eq. 6.1), ``var_gyro`` 0.005 (eq. 6.4), ``var_sonar`` 0.02 (the thesis's
     0.0625 of eq. 6.3 absorbed the point model's error, our surface model needs less),
     ``var_mag`` 0.015 (eq. 6.9), ``var_bilat`` 0.25 (m^2: two sonars see different points of
@@ -95,9 +96,10 @@ class TrainTracker:
         var_mag: float = 0.015,
         var_bilat: float = 0.25,
         omega0: float = 0.5,
+        radius_var0: float = 1.0,
         target_length: float = 0.0,
         target_radius: float = 0.0,
-        q_theta: float = 1e-5,
+        q_theta: float = 1e-3,
         q_omega: float | None = None,
         q_radius: float = 4e-5,
         q_xy: float = 1e-8,
@@ -146,6 +148,9 @@ class TrainTracker:
         self.beam_cos = math.cos(math.radians(half_angle_deg - beam_margin_deg))
         self.beam_edge = 0
         self.t: float | None = None
+        self.omega_sign = 1.0 if omega0 >= 0 else -1.0
+        self.direction_fixes = 0
+        self.out_of_order = 0
         self.late = 0
         self.rejected = 0
         if r.omega_only:
@@ -153,7 +158,7 @@ class TrainTracker:
         else:  # REFERENCE: x0 = [0, 0, 0, 0.5], P0 = diag(2, 2, pi, 1) (+ r = 1, P 1)
             x0, p0 = [0.0, 0.0, 0.0, omega0], [2.0, 2.0, math.pi, 1.0]
             if r.radius_state:
-                x0, p0 = [*x0, self.radius], [*p0, 1.0]
+                x0, p0 = [*x0, self.radius], [*p0, float(radius_var0)]
         self.n = len(x0)
         self.ekf = ExtendedKalmanFilter(
             np.array(x0), np.diag(p0), self._f, np.zeros((self.n, self.n)), F=self._F
@@ -267,6 +272,8 @@ class TrainTracker:
         if dt < -self.max_lag:
             self.late += 1
             return False
+        if dt < 0:
+            self.out_of_order += 1  # fused at the filter's time, up to max_lag too late
         if dt > 0:
             self.ekf.predict(dt, Q=self._Q(dt))
             self.t = sample.t
@@ -299,7 +306,25 @@ class TrainTracker:
         gated = sample.name in ("sonar", "bilateration") and self.gate is not None
         result = self.ekf.update(obs, gate=self.gate if gated else None)
         self.rejected += len(result.rejected)
+        self._keep_direction()
         return True
+
+    def _keep_direction(self) -> None:
+        """The train runs one way (the sign of ``omega0``). e4: a_c = r w^2 cannot tell w
+        from -w, so the mirrored state fits the data equally well: take the right branch.
+        Other rungs: project the estimate onto w * sign >= 0 when it strays (estimate
+        projection, Simon & Chia 2002: x <- x - P e_w (x_w - 0) / P_ww, the P-weighted
+        nearest point of the constraint, which also moves the correlated theta and x, y)."""
+        x = self.ekf.x
+        w_i = 0 if self.n == 1 else 3
+        if x[w_i] * self.omega_sign >= 0:
+            return
+        self.direction_fixes += 1
+        if self.n == 1:
+            self.ekf.reset(-x, self.ekf.P)
+            return
+        P = self.ekf.P
+        self.ekf.reset(x - P[:, w_i] * (x[w_i] / P[w_i, w_i]), P)
 
     def estimate(self) -> tuple[float, list[float]] | None:
         """(time, state) of the latest estimate, theta wrapped to (-pi, pi]."""

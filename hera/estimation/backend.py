@@ -51,7 +51,9 @@ class _Kernels:
         sigs = self._mod.SIGNATURES
         if name not in sigs:
             raise AttributeError(name)
-        fn = numba.njit(sigs[name], cache=True)(getattr(self._mod, name))
+        # error_model="numpy": a division by zero gives inf/nan (which the kernels test
+        # for) instead of a check and a Python exception on every division.
+        fn = numba.njit(sigs[name], cache=True, error_model="numpy")(getattr(self._mod, name))
         setattr(self, name, fn)
         return fn
 

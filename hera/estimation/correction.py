@@ -26,9 +26,9 @@ from .backend import active_kernels
 from .gating import gate_threshold
 from .numerics import CovarianceError, NonFiniteInputError, numerical_jacobian
 from .observations import Block, Observations
-from .results import BlockOutcome, UpdateResult, make_outcome, make_result
+from .results import BlockOutcome, UpdateResult, make_outcome, make_result1
 from .small import inv_small, quad_form_small
-from .stacking import EMPTY1, EMPTY2, block_layout, stack_noise
+from .stacking import EMPTY1, EMPTY2, SCRATCH, block_layout, grow_scratch, stack_noise
 
 # Kernel protocol (mirrors kernels_numba, which may not be importable): status and flags.
 ALL_REJECTED = 1
@@ -37,6 +37,7 @@ _MODE_GIVEN = 2
 _DIAG = 4
 _JOSEPH = 8
 _SEQUENTIAL = 16
+_WS_SMALL = -4  # scratch array too short (kernels_numba.WS_SMALL)
 
 __all__ = [
     "LinearisedFilter",
@@ -49,6 +50,9 @@ __all__ = [
 
 _EYE: dict[int, np.ndarray] = {}
 _isfinite = math.isfinite
+_empty = np.empty
+_ND = np.ndarray
+_INF = math.inf
 
 
 def eye(n: int) -> np.ndarray:
@@ -213,65 +217,79 @@ def _compiled_update(
     numpy path must decide (non-finite input, S or P not positive definite, unusual shapes
     or dtypes), which then raises the labelled error. User functions (h, Jacobian,
     residual) run once here (again on the numpy path only in those failure cases)."""
+    if len(blocks) == 1 and method != "sequential":
+        return _compiled_single(k, x, P, blocks[0], gate, joseph, method)
+    return _compiled_stacked(k, x, P, blocks, gate, joseph, method)
+
+
+def _compiled_single(
+    k: Any, x: np.ndarray, P: np.ndarray, b: Block, gate: float | None, joseph: bool, method: str
+) -> tuple[np.ndarray, np.ndarray, UpdateResult] | None:
+    """Joint update of one block on the allocation-free kernel ``lin_update1`` (the hot
+    path of a fusion model: one sensor sample per step). The kernel checks every shape and
+    numba's dispatch every dtype and rank, so this only converts what is not an array."""
+    m = b.dim
+    var = b.var
+    if m > 3 and method == "auto" and var is not None:
+        return _compiled_stacked(k, x, P, (b,), gate, joseph, method)  # sequential
+    flags = _JOSEPH if joseph else 0
+    H = b.H
+    if b.residual is None:
+        if H is not None:
+            z, hx = b.z, EMPTY1  # mode 0: the kernel computes y = z - H x
+        else:
+            flags |= _MODE_HX
+            z = b.z
+            if b.jacobian is None:
+                H, hx = _linearise(b, x)
+            else:  # as _linearise, the shape checks left to the kernel
+                hx = b.h(x)  # type: ignore[misc]
+                if type(hx) is not _ND:
+                    hx = np.asarray(hx, dtype=np.float64).reshape(-1)
+                H = b.jacobian(x)
+                if type(H) is not _ND:
+                    H = np.asarray(H, dtype=np.float64).reshape(m, -1)
+    else:
+        H, hx = _linearise(b, x)
+        z = _innovation(b, hx)
+        flags |= _MODE_GIVEN
+    if var is not None:
+        flags |= _DIAG
+        R = EMPTY2
+    else:
+        var, R = EMPTY1, b.R
+    thr = _INF if gate is None else gate_threshold(gate, m)
+    n = x.shape[0]
+    x_out = _empty(n)
+    P_out = _empty((n, n))
+    try:
+        nis = k.lin_update1(x, P, H, z, hx, var, R, thr, flags, SCRATCH[0], x_out, P_out)
+        if nis == _WS_SMALL:
+            ws = grow_scratch(4 * m + 4 * n * m + 2 * m * m + n * n)
+            nis = k.lin_update1(x, P, H, z, hx, var, R, thr, flags, ws, x_out, P_out)
+    except TypeError:  # e.g. an integer Jacobian or h(x): the numpy path converts it
+        return None
+    if nis < 0.0:
+        return None
+    if gate is None:
+        return x_out, P_out, make_result1(b.label, m, nis, True, None)
+    if nis <= thr:
+        return x_out, P_out, make_result1(b.label, m, nis, True, thr)
+    return x, P, make_result1(b.label, m, nis, False, thr)
+
+
+def _compiled_stacked(
+    k: Any,
+    x: np.ndarray,
+    P: np.ndarray,
+    blocks: Sequence[Block],
+    gate: float | None,
+    joseph: bool,
+    method: str,
+) -> tuple[np.ndarray, np.ndarray, UpdateResult] | None:
+    """Several blocks, or sequential updates: the general kernel ``lin_update``."""
     n = x.shape[0]
     flags = _JOSEPH if joseph else 0
-    if len(blocks) == 1:
-        b = blocks[0]
-        m = b.dim
-        H = b.H
-        if H is not None and b.residual is None:
-            z, hx = b.z, EMPTY1  # mode 0: the kernel computes y = z - H x
-        elif b.jacobian is not None and b.residual is None:
-            # EKF block with an analytic Jacobian: as _linearise, with fewer checks (the
-            # shape checks below and the kernel's dtype dispatch cover the rest).
-            hx = b.h(x)  # type: ignore[misc]
-            if type(hx) is not np.ndarray or hx.ndim != 1:
-                hx = np.asarray(hx, dtype=np.float64).reshape(-1)
-            H = b.jacobian(x)
-            if type(H) is not np.ndarray or H.ndim != 2:
-                H = np.asarray(H, dtype=np.float64).reshape(m, -1)
-            if hx.shape[0] != m:
-                return None
-            z = b.z
-            flags |= _MODE_HX
-        else:
-            H, hx = _linearise(b, x)
-            if b.residual is None:
-                z = b.z
-                flags |= _MODE_HX
-            else:
-                z = _innovation(b, hx)
-                flags |= _MODE_GIVEN
-                if z.shape[0] != m:
-                    return None
-        if H.shape != (m, n):
-            return None
-        var = b.var
-        if var is not None:
-            flags |= _DIAG
-            R = EMPTY2
-        else:
-            var, R = EMPTY1, b.R
-        if method == "sequential" or (m > 3 and method == "auto" and flags & _DIAG):
-            if not flags & _DIAG:
-                return None
-            flags |= _SEQUENTIAL
-        thr = math.inf if gate is None else gate_threshold(gate, m)
-        x_out = np.empty(n)
-        P_out = np.empty((n, n))
-        try:
-            status, nis = k.lin_update1(x, P, H, z, hx, var, R, thr, flags, x_out, P_out)
-        except TypeError:  # e.g. an integer Jacobian or h(x): the numpy path converts it
-            return None
-        if status < 0:
-            return None
-        if gate is None:
-            res = make_result([make_outcome(b.label, m, nis, True, None)])
-        else:
-            res = make_result([make_outcome(b.label, m, nis, nis <= thr, thr)])
-        if status == ALL_REJECTED:
-            return x, P, res
-        return x_out, P_out, res
     parts = []
     for b in blocks:
         Hb, hx = _linearise(b, x)
@@ -536,19 +554,20 @@ class LinearisedFilter:
         filter's ``gate``. Returns which blocks were accepted/rejected with their NIS. On any
         exception the state is unchanged.
         """
-        blocks = as_blocks(obs)
+        blocks = obs.blocks if type(obs) is Observations else as_blocks(obs)
         if not blocks:
             return UpdateResult([])
         g = self.gate if gate is ... else gate
         k = active_kernels()
         out = None
         if k is not None:
-            out = _compiled_update(k, self.x, self.P, blocks, g, self.joseph, method)
+            if len(blocks) == 1 and method != "sequential":
+                out = _compiled_single(k, self.x, self.P, blocks[0], g, self.joseph, method)
+            else:
+                out = _compiled_stacked(k, self.x, self.P, blocks, g, self.joseph, method)
         if out is None:
             out = linearised_update_numpy(self.x, self.P, blocks, g, self.joseph, method)
-        x, P, res = out
-        self.x = x
-        self.P = P
+        self.x, self.P, res = out
         return res
 
     def _commit_predict(self, x: np.ndarray, P: np.ndarray, what: str) -> None:

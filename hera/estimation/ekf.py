@@ -13,10 +13,14 @@ from typing import Any
 import numpy as np
 
 from .backend import active_kernels
-from .correction import LinearisedFilter, _as_matrix
+from .correction import _WS_SMALL, LinearisedFilter, _as_matrix
 from .numerics import NonFiniteInputError, numerical_jacobian
+from .stacking import SCRATCH, grow_scratch
 
 __all__ = ["ExtendedKalmanFilter"]
+
+_ND = np.ndarray
+_empty = np.empty
 
 
 class ExtendedKalmanFilter(LinearisedFilter):
@@ -50,36 +54,40 @@ class ExtendedKalmanFilter(LinearisedFilter):
         x = self.x
         if self.F is not None:
             Fj = self.F(x, dt, u)
-            if type(Fj) is not np.ndarray:
+            if type(Fj) is not _ND:
                 Fj = np.asarray(Fj, dtype=np.float64)
         else:
             f = self.f
             Fj = numerical_jacobian(lambda s: f(s, dt, u), x, self.n)
         xn = self.f(x, dt, u)
-        if type(xn) is not np.ndarray or xn.ndim != 1:
-            xn = np.asarray(xn, dtype=np.float64).reshape(-1)
         if Q is None:
             Qm = self._Q
-            if callable(Qm):
+            if type(Qm) is not _ND:  # a function of dt
                 if dt != self._dt or self._Qdt is None:
                     self._Qdt = _as_matrix(Qm(dt), self.n, "Q(dt)")
                     self._dt = dt
                 Qm = self._Qdt
         else:
             Qm = np.asarray(Q, dtype=np.float64)
-        if Fj.shape != (self.n, self.n):
-            raise ValueError(f"Jacobian F has shape {Fj.shape}, expected ({self.n}, {self.n})")
         k = active_kernels()
-        if k is not None and xn.shape == (self.n,) and Qm.shape == Fj.shape:
-            P = np.empty(Fj.shape)
+        if k is not None and type(xn) is _ND:
+            # The kernel checks every shape, numba's dispatch every dtype and rank.
+            n = self.n
+            P = _empty((n, n))
             try:
-                status = k.ekf_predict(xn, self.P, Fj, Qm, P)
+                status = k.ekf_predict(xn, self.P, Fj, Qm, SCRATCH[0], P)
+                if status == _WS_SMALL:
+                    status = k.ekf_predict(xn, self.P, Fj, Qm, grow_scratch(n * n), P)
             except TypeError:  # e.g. an integer Jacobian: the numpy path converts it
                 status = -1
             if not status:
                 self.x = xn
                 self.P = P
                 return
+        if type(xn) is not _ND or xn.ndim != 1:
+            xn = np.asarray(xn, dtype=np.float64).reshape(-1)
+        if Fj.shape != (self.n, self.n):
+            raise ValueError(f"Jacobian F has shape {Fj.shape}, expected ({self.n}, {self.n})")
         P = Fj @ self.P @ Fj.T
         P += P.T  # exact symmetry, then halve and add Q
         P *= 0.5

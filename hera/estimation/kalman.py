@@ -13,7 +13,8 @@ from typing import Any
 import numpy as np
 
 from .backend import active_kernels
-from .correction import LinearisedFilter, _as_matrix
+from .correction import _WS_SMALL, LinearisedFilter, _as_matrix
+from .stacking import SCRATCH, grow_scratch
 
 __all__ = ["KalmanFilter"]
 
@@ -81,7 +82,9 @@ class KalmanFilter(LinearisedFilter):
             x = np.empty(n)
             P = np.empty((n, n))
             try:
-                status = k.kf_predict(self.x, self.P, Fm, Qm, x, P)
+                status = k.kf_predict(self.x, self.P, Fm, Qm, SCRATCH[0], x, P)
+                if status == _WS_SMALL:
+                    status = k.kf_predict(self.x, self.P, Fm, Qm, grow_scratch(n * n), x, P)
             except TypeError:  # x or P replaced by the user with another dtype or layout
                 status = -1
             if not status:
@@ -119,16 +122,17 @@ class KalmanFilter(LinearisedFilter):
             return False
         x = np.empty(n)
         P = np.empty((n, n))
+        ws = grow_scratch(n * n)
         try:
             if u is None:
-                status = k.kf_predict(self.x, self.P, F, Q, x, P)
+                status = k.kf_predict(self.x, self.P, F, Q, ws, x, P)
             else:
                 if B is None:
                     raise ValueError("control input u given but the filter has no B")
                 um = np.asarray(u, dtype=np.float64).reshape(-1)
                 if B.shape != (n, um.shape[0]):
                     return False
-                status = k.kf_predict_u(self.x, self.P, F, Q, B, um, x, P)
+                status = k.kf_predict_u(self.x, self.P, F, Q, B, um, ws, x, P)
         except TypeError:
             return False
         if status:

@@ -21,6 +21,11 @@ Cholesky (S = L L^T), which also is the positive-definiteness test; NIS = |L^-1 
 
 The functions below are compiled lazily by ``backend`` with the signatures in ``SIGNATURES``
 (any layout, read-only inputs accepted) and ``cache=True``.
+
+Hot-path kernels (``lin_update1``, the predicts) allocate nothing: their intermediates live
+in a scratch array ``ws`` the caller passes (``stacking.SCRATCH``), and they check every
+array shape themselves (returning ``BAD_SHAPE``), so no argument can make them read or
+write out of bounds; numba's dispatch checks dtypes and ranks.
 """
 
 from __future__ import annotations
@@ -36,9 +41,13 @@ ALL_REJECTED = 1
 NONFINITE = -1
 NOT_PD = -2
 BAD_P = -3
+WS_SMALL = -4  # the scratch array ws is too short: the caller grows it and retries
+BAD_SHAPE = -5  # inconsistent array shapes: the numpy path raises the precise error
 
 _isfinite = math.isfinite
-_jit = numba.njit(cache=True)  # helpers: compiled into the kernels that call them
+_jit = numba.njit(
+    cache=True, error_model="numpy"
+)  # helpers: compiled into the kernels that call them
 
 
 @_jit
@@ -125,21 +134,33 @@ def _finish(P_out):
 
 
 @_jit
-def _cov_predict(P, F, Q, P_out):
-    """P_out = sym(F P F^T) + Q; False if not finite."""
+def _square(A, n):
+    return A.shape[0] == n and A.shape[1] == n
+
+
+@_jit
+def _predict_shapes(P, F, Q, x_out, P_out, n):
+    """True when P, F, Q, P_out are (n, n) and x_out is (n,)."""
+    return (
+        _square(P, n) and _square(F, n) and _square(Q, n) and _square(P_out, n)
+    ) and x_out.shape[0] == n
+
+
+@_jit
+def _cov_predict(P, F, Q, ws, P_out):
+    """P_out = sym(F P F^T) + Q, with F P kept in ws[:n * n]; False if not finite."""
     n = P.shape[0]
-    T = np.empty((n, n))
     for i in range(n):
         for j in range(n):
             t = 0.0
             for k in range(n):
                 t += F[i, k] * P[k, j]
-            T[i, j] = t
+            ws[i * n + j] = t
     for i in range(n):
         for j in range(i, n):
             v = 0.0
             for k in range(n):
-                v += T[i, k] * F[j, k]
+                v += ws[i * n + k] * F[j, k]
             # F P F^T is symmetric: compute the upper triangle and mirror it (exactly
             # symmetric, as the numpy path's (A + A^T) / 2), then add Q.
             P_out[i, j] = v + Q[i, j]
@@ -149,9 +170,13 @@ def _cov_predict(P, F, Q, P_out):
     return True
 
 
-def kf_predict(x, P, F, Q, x_out, P_out):
-    """x_out = F x, P_out = sym(F P F^T) + Q (seed 003 eq. 5)."""
+def kf_predict(x, P, F, Q, ws, x_out, P_out):
+    """x_out = F x, P_out = sym(F P F^T) + Q (seed 003 eq. 5); ws: scratch of >= n * n."""
     n = x.shape[0]
+    if not _predict_shapes(P, F, Q, x_out, P_out, n):
+        return BAD_SHAPE
+    if ws.shape[0] < n * n:
+        return WS_SMALL
     for i in range(n):
         t = 0.0
         for k in range(n):
@@ -159,14 +184,18 @@ def kf_predict(x, P, F, Q, x_out, P_out):
         if not _isfinite(t):
             return NONFINITE
         x_out[i] = t
-    if not _cov_predict(P, F, Q, P_out):
+    if not _cov_predict(P, F, Q, ws, P_out):
         return NONFINITE
     return OK
 
 
-def kf_predict_u(x, P, F, Q, B, u, x_out, P_out):
-    """x_out = F x + B u, P_out = sym(F P F^T) + Q (seed 003 eq. 5)."""
+def kf_predict_u(x, P, F, Q, B, u, ws, x_out, P_out):
+    """x_out = F x + B u, P_out = sym(F P F^T) + Q (seed 003 eq. 5); ws as kf_predict."""
     n = x.shape[0]
+    if not _predict_shapes(P, F, Q, x_out, P_out, n) or B.shape[0] != n or B.shape[1] != u.shape[0]:
+        return BAD_SHAPE
+    if ws.shape[0] < n * n:
+        return WS_SMALL
     for i in range(n):
         t = 0.0
         for k in range(n):
@@ -176,18 +205,23 @@ def kf_predict_u(x, P, F, Q, B, u, x_out, P_out):
         if not _isfinite(t):
             return NONFINITE
         x_out[i] = t
-    if not _cov_predict(P, F, Q, P_out):
+    if not _cov_predict(P, F, Q, ws, P_out):
         return NONFINITE
     return OK
 
 
-def ekf_predict(xn, P, F, Q, P_out):
+def ekf_predict(xn, P, F, Q, ws, P_out):
     """P_out = sym(F P F^T) + Q with the process Jacobian F; checks that xn = f(x) is
-    finite (seed 003 eq. 7)."""
-    for i in range(xn.shape[0]):
+    finite (seed 003 eq. 7); ws as kf_predict."""
+    n = xn.shape[0]
+    if not _predict_shapes(P, F, Q, xn, P_out, n):
+        return BAD_SHAPE
+    if ws.shape[0] < n * n:
+        return WS_SMALL
+    for i in range(n):
         if not _isfinite(xn[i]):
             return NONFINITE
-    if not _cov_predict(P, F, Q, P_out):
+    if not _cov_predict(P, F, Q, ws, P_out):
         return NONFINITE
     return OK
 
@@ -210,15 +244,191 @@ def lin_update(x, P, H, z, hx, var, R, ends, thr, flags, x_out, P_out, nis_out):
     return _lin_update(x, P, H, z, hx, var, R, ends, thr, flags, x_out, P_out, nis_out)
 
 
-def lin_update1(x, P, H, z, hx, var, R, thr, flags, x_out, P_out):
-    """``lin_update`` for a single block with NIS gate ``thr``; returns (status, NIS)."""
-    ends = np.empty(1, np.int64)
-    ends[0] = H.shape[0]
-    th = np.empty(1)
-    th[0] = thr
-    nis = np.zeros(1)
-    st = _lin_update(x, P, H, z, hx, var, R, ends, th, flags, x_out, P_out, nis)
-    return st, nis[0]
+def lin_update1(x, P, H, z, hx, var, R, thr, flags, ws, x_out, P_out):
+    """``lin_update`` for a single block (joint update, no ``SEQUENTIAL`` flag) with NIS
+    gate ``thr``, allocating nothing: every intermediate lives in ``ws`` (at least
+    4 m + 4 n m + 2 m^2 + n^2 values; the same arithmetic, in the same order, as
+    ``_lin_update`` on one block).
+
+    Returns the NIS (>= 0): the block was fused and x_out, P_out written iff NIS <= thr.
+    A negative value is a status code (NONFINITE, NOT_PD, BAD_P, BAD_SHAPE, WS_SMALL) as a
+    float. Every shape is checked here, so the caller need not (dtypes and ranks are
+    checked by numba's dispatch against the signature).
+    """
+    mode = flags & 3
+    diag = (flags & DIAG) != 0
+    n = x.shape[0]
+    m = H.shape[0]
+    if (
+        H.shape[1] != n
+        or z.shape[0] != m
+        or (mode == 1 and hx.shape[0] != m)
+        or (var.shape[0] != m if diag else (R.shape[0] != m or R.shape[1] != m))
+        or not _square(P, n)
+        or not _square(P_out, n)
+        or x_out.shape[0] != n
+    ):
+        return float(BAD_SHAPE)
+    if ws.shape[0] < 4 * m + 4 * n * m + 2 * m * m + n * n:
+        return float(WS_SMALL)
+    # Scratch layout, row-major: y (m), PHt (n, m), S (m, m), L (m, m), w (m), K^T (m, n),
+    # b (m), G = H P (m, n), T (n, n), W (n, m).
+    o_ph = m
+    o_s = o_ph + n * m
+    o_l = o_s + m * m
+    o_w = o_l + m * m
+    o_kt = o_w + m
+    o_b = o_kt + m * n
+    o_g = o_b + m
+    o_t = o_g + m * n
+    o_wk = o_t + n * n
+    for i in range(m):
+        if mode == 0:
+            t = 0.0
+            for k in range(n):
+                t += H[i, k] * x[k]
+            v = z[i] - t
+        elif mode == 1:
+            v = z[i] - hx[i]
+        else:
+            v = z[i]
+        if not _isfinite(v):
+            return float(NONFINITE)
+        ws[i] = v
+    for i in range(n):
+        for j in range(m):
+            t = 0.0
+            for k in range(n):
+                t += P[i, k] * H[j, k]
+            ws[o_ph + i * m + j] = t
+    for i in range(m):
+        for j in range(m):
+            t = 0.0
+            for k in range(n):
+                t += H[i, k] * ws[o_ph + k * m + j]
+            if diag:
+                if i == j:
+                    t += var[i]
+            else:
+                t += R[i, j]
+            if not _isfinite(t):
+                return float(NONFINITE)
+            ws[o_s + i * m + j] = t
+    # Cholesky S = L L^T (lower triangle of S read), the positive-definiteness test.
+    for j in range(m):
+        s = ws[o_s + j * m + j]
+        for p in range(j):
+            s -= ws[o_l + j * m + p] * ws[o_l + j * m + p]
+        if not (s > 0.0) or not _isfinite(s):
+            return float(NOT_PD)
+        d = math.sqrt(s)
+        ws[o_l + j * m + j] = d
+        for i in range(j + 1, m):
+            t = ws[o_s + i * m + j]
+            for p in range(j):
+                t -= ws[o_l + i * m + p] * ws[o_l + j * m + p]
+            ws[o_l + i * m + j] = t / d
+    nis = 0.0  # |L^-1 y|^2
+    for i in range(m):
+        t = ws[i]
+        for p in range(i):
+            t -= ws[o_l + i * m + p] * ws[o_w + p]
+        t = t / ws[o_l + i * m + i]
+        ws[o_w + i] = t
+        nis += t * t
+    if not nis <= thr:
+        return nis
+    for j in range(n):  # K^T = S^-1 (P H^T)^T, column by column
+        for r in range(m):
+            ws[o_b + r] = ws[o_ph + j * m + r]
+        for i in range(m):
+            t = ws[o_b + i]
+            for p in range(i):
+                t -= ws[o_l + i * m + p] * ws[o_b + p]
+            ws[o_b + i] = t / ws[o_l + i * m + i]
+        for i in range(m - 1, -1, -1):
+            t = ws[o_b + i]
+            for p in range(i + 1, m):
+                t -= ws[o_l + p * m + i] * ws[o_b + p]
+            ws[o_b + i] = t / ws[o_l + i * m + i]
+        for r in range(m):
+            ws[o_kt + r * n + j] = ws[o_b + r]
+    for i in range(n):
+        t = x[i]
+        for r in range(m):
+            t += ws[o_kt + r * n + i] * ws[r]
+        x_out[i] = t
+    sym = True  # P exactly symmetric (as the filter keeps it): then H P = (P H^T)^T
+    for i in range(n):
+        for j in range(i + 1, n):
+            if P[i, j] != P[j, i]:
+                sym = False
+    if flags & JOSEPH:
+        for r in range(m):  # G = H P
+            for j in range(n):
+                if sym:
+                    t = ws[o_ph + j * m + r]
+                else:
+                    t = 0.0
+                    for q in range(n):
+                        t += H[r, q] * P[q, j]
+                ws[o_g + r * n + j] = t
+    if flags & JOSEPH and diag and m <= 3:
+        # The Joseph form written out, as the numpy path does for this case (one block of
+        # 1-3 rows, diagonal R): P - K G - G^T K^T + K S K^T = P + (E + E^T) with
+        # E = K (S K^T / 2 - G), exactly symmetric, in O(n^2 m).
+        for r in range(m):  # G <- S K^T / 2 - G, in place
+            for j in range(n):
+                t = 0.0
+                for c in range(m):
+                    t += ws[o_s + r * m + c] * ws[o_kt + c * n + j]
+                ws[o_g + r * n + j] = 0.5 * t - ws[o_g + r * n + j]
+        for i in range(n):  # E into P_out
+            for j in range(n):
+                t = 0.0
+                for r in range(m):
+                    t += ws[o_kt + r * n + i] * ws[o_g + r * n + j]
+                P_out[i, j] = t
+        for i in range(n):
+            for j in range(i, n):
+                e = P_out[i, j] + P_out[j, i]
+                P_out[i, j] = P[i, j] + e
+                P_out[j, i] = P[j, i] + e
+    elif flags & JOSEPH:
+        # As _lin_update: T = P - K (H P), W = K R - T H^T, P_out = T + W K^T.
+        for i in range(n):
+            for j in range(n):
+                t = P[i, j]
+                for r in range(m):
+                    t -= ws[o_kt + r * n + i] * ws[o_g + r * n + j]
+                ws[o_t + i * n + j] = t
+        for i in range(n):
+            for c in range(m):
+                if diag:
+                    t = ws[o_kt + c * n + i] * var[c]
+                else:
+                    t = 0.0
+                    for r in range(m):
+                        t += ws[o_kt + r * n + i] * R[r, c]
+                for q in range(n):
+                    t -= ws[o_t + i * n + q] * H[c, q]
+                ws[o_wk + i * m + c] = t
+        for i in range(n):
+            for j in range(n):
+                t = ws[o_t + i * n + j]
+                for c in range(m):
+                    t += ws[o_wk + i * m + c] * ws[o_kt + c * n + j]
+                P_out[i, j] = t
+    else:
+        for i in range(n):
+            for j in range(n):
+                t = P[i, j]
+                for r in range(m):
+                    t -= ws[o_kt + r * n + i] * ws[o_ph + j * m + r]
+                P_out[i, j] = t
+    if not _finish(P_out):
+        return float(BAD_P)
+    return nis
 
 
 @_jit
@@ -569,14 +779,26 @@ _r2 = types.Array(_F, 2, "A", readonly=True)
 _ri = types.Array(_I, 1, "A", readonly=True)
 _pair = types.Tuple((_I, _F))
 
+# The hot kernels also get an exact signature for the usual case (every array C-contiguous
+# and writable, as numpy creates them): numba's dispatch matches it directly instead of
+# converting to the general one, and the loops index without strides.
 SIGNATURES = {
-    "kf_predict": _I(_c1, _c2, _r2, _r2, _c1, _c2),
-    "kf_predict_u": _I(_c1, _c2, _r2, _r2, _r2, _r1, _c1, _c2),
-    "ekf_predict": _I(_r1, _c2, _r2, _r2, _c2),
-    "lin_update1": _pair(_c1, _c2, _r2, _r1, _r1, _r1, _r2, _F, _I, _c1, _c2),
-    "lin_update": _I(_c1, _c2, _r2, _r1, _r1, _r1, _r2, _ri, _r1, _I, _c1, _c2, _c1),
-    "ukf_sigmas": _I(_c1, _c2, _F, _c2),
-    "ukf_predict": _I(_r2, _c1r, _c1r, _r2, _c1, _c2),
-    "ukf_update1": _pair(_c1, _c2, _c2, _r2, _r1, _r1, _r2, _B, _F, _c1r, _c1r, _c1, _c2),
-    "ukf_update": _I(_c1, _c2, _c2, _r2, _r1, _r1, _r2, _B, _ri, _r1, _c1r, _c1r, _c1, _c2, _c1),
+    "kf_predict": [
+        _I(_c1, _c2, _c2, _c2, _c1, _c1, _c2),
+        _I(_c1, _c2, _r2, _r2, _c1, _c1, _c2),
+    ],
+    "kf_predict_u": [_I(_c1, _c2, _r2, _r2, _r2, _r1, _c1, _c1, _c2)],
+    "ekf_predict": [
+        _I(_c1, _c2, _c2, _c2, _c1, _c2),
+        _I(_r1, _c2, _r2, _r2, _c1, _c2),
+    ],
+    "lin_update1": [
+        _F(_c1, _c2, _c2, _c1, _c1, _c1, _c2, _F, _I, _c1, _c1, _c2),
+        _F(_c1, _c2, _r2, _r1, _r1, _r1, _r2, _F, _I, _c1, _c1, _c2),
+    ],
+    "lin_update": [_I(_c1, _c2, _r2, _r1, _r1, _r1, _r2, _ri, _r1, _I, _c1, _c2, _c1)],
+    "ukf_sigmas": [_I(_c1, _c2, _F, _c2)],
+    "ukf_predict": [_I(_r2, _c1r, _c1r, _r2, _c1, _c2)],
+    "ukf_update1": [_pair(_c1, _c2, _c2, _r2, _r1, _r1, _r2, _B, _F, _c1r, _c1r, _c1, _c2)],
+    "ukf_update": [_I(_c1, _c2, _c2, _r2, _r1, _r1, _r2, _B, _ri, _r1, _c1r, _c1r, _c1, _c2, _c1)],
 }

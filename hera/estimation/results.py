@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-__all__ = ["BlockOutcome", "UpdateResult", "make_outcome", "make_result"]
+__all__ = ["BlockOutcome", "UpdateResult", "make_outcome", "make_result", "make_result1"]
 
 
 @dataclass(slots=True, frozen=True)
@@ -80,4 +80,20 @@ def make_result(outcomes: list[BlockOutcome]) -> UpdateResult:
     """``UpdateResult(outcomes)`` for the hot path (same object, no dataclass ``__init__``)."""
     r = _new(UpdateResult)
     _set_outcomes(r, outcomes)
+    return r
+
+
+def make_result1(
+    label: str, dim: int, nis: float, accepted: bool, threshold: float | None
+) -> UpdateResult:
+    """``UpdateResult([BlockOutcome(label, dim, nis, accepted, threshold)])`` for the
+    one-block hot path: ``make_result(make_outcome(...))`` with one call less."""
+    o = _new(BlockOutcome)
+    _set_label(o, label)
+    _set_dim(o, dim)
+    _set_nis(o, nis)
+    _set_accepted(o, accepted)
+    _set_threshold(o, threshold)
+    r = _new(UpdateResult)
+    _set_outcomes(r, [o])
     return r

@@ -1,6 +1,6 @@
-"""Cheap stacking helpers for the compiled path: block layout and gate thresholds (cached
-per (gate, block sizes), since the same sensor set repeats every step), and the stacked
-measurement noise of several blocks."""
+"""Cheap helpers for the compiled path: the kernels' scratch array, block layout and gate
+thresholds (cached per (gate, block sizes), since the same sensor set repeats every step),
+and the stacked measurement noise of several blocks."""
 
 from __future__ import annotations
 
@@ -12,12 +12,27 @@ import numpy as np
 from .gating import gate_threshold
 from .observations import Block
 
-__all__ = ["EMPTY1", "EMPTY2", "block_layout", "stack_noise"]
+__all__ = ["EMPTY1", "EMPTY2", "SCRATCH", "block_layout", "grow_scratch", "stack_noise"]
 
+# Placeholders for unused kernel arguments. Writable on purpose: numba's dispatch types a
+# writable C array through its fast path (a read-only one costs a slower lookup), and an
+# array of size zero has nothing to write to.
 EMPTY1 = np.zeros(0)
-EMPTY1.flags.writeable = False
 EMPTY2 = np.zeros((0, 0))
-EMPTY2.flags.writeable = False
+
+# Scratch array of the allocation-free kernels: ``SCRATCH[0]``, shared by every filter. The
+# kernels hold the GIL for their whole run (no ``nogil``, no callbacks into Python) and keep
+# nothing in it between calls, so sharing is safe across filters and threads. A kernel that
+# finds it too short returns WS_SMALL; the caller then calls ``grow_scratch`` and retries.
+SCRATCH = [np.empty(4096)]
+
+
+def grow_scratch(size: int) -> np.ndarray:
+    """Make ``SCRATCH[0]`` at least ``size`` values long (never shrinks); returns it."""
+    if SCRATCH[0].shape[0] < size:
+        SCRATCH[0] = np.empty(max(size, 2 * SCRATCH[0].shape[0]))
+    return SCRATCH[0]
+
 
 _LAYOUT: dict[tuple, tuple[np.ndarray, np.ndarray, list]] = {}
 _LAYOUT_MAX = 4096

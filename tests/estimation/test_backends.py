@@ -101,6 +101,7 @@ def test_kernel_protocol_matches(numba_kernels):
     from hera.estimation import kernels_numba as kn
 
     assert (kn.ALL_REJECTED, kn.MODE_HX, kn.MODE_GIVEN) == (corr.ALL_REJECTED, 1, 2)
+    assert kn.WS_SMALL == corr._WS_SMALL
     assert (corr._MODE_HX, corr._MODE_GIVEN, corr._DIAG, corr._JOSEPH, corr._SEQUENTIAL) == (
         kn.MODE_HX,
         kn.MODE_GIVEN,
@@ -327,3 +328,152 @@ def test_bad_covariance_and_foreign_arrays(use, name):
     kf.predict(0.1)
     kf.update(Observations().add("z", [1.0], H=np.array([[1, 0, 0]]), R=1.0))
     assert kf.P[0, 0] == pytest.approx(3.0 - 9.0 / 4.0)
+
+
+# --- Allocation-free single-block kernel (lin_update1) and the predict kernels ---------
+
+
+@pytest.mark.parametrize("n", [1, 2, 9])
+@pytest.mark.parametrize("m", [1, 2, 3, 4])
+@pytest.mark.parametrize("kind", ["H", "J", "N", "W"])
+@pytest.mark.parametrize("full_R", [False, True])
+@pytest.mark.parametrize("joseph", [True, False])
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_single_block_kernel_matches_numpy(
+    use, numba_kernels, n, m, kind, full_R, joseph, symmetric
+):
+    """Every branch of lin_update1: innovation mode, diagonal/full R, Joseph (expanded form
+    for m <= 3 with diagonal R, T/W form otherwise) or short form, P exactly symmetric (H P
+    taken from P H^T) or not."""
+    rng = np.random.default_rng(n * 97 + m * 13 + len(kind))
+    x, P = rng.normal(size=n), _spd(rng, n)
+    if not symmetric and n > 1:  # asymmetric by one ulp, as roundoff leaves a user's P
+        P[0, -1] = np.nextafter(P[0, -1], np.inf)
+    obs = _obs(rng, n, (m,), kind, full_R=full_R)
+    for gate in (None, 0.999):
+        (xa, Pa, ra), (xb, Pb, rb) = _both(
+            use, lambda g=gate: linearised_update(x, P, obs.blocks, g, joseph, "joint")
+        )
+        np.testing.assert_allclose(xb, xa, **TOL)
+        np.testing.assert_allclose(Pb, Pa, **TOL)
+        assert np.array_equal(Pb, Pb.T) or (not rb.updated and Pb is P)
+        _same_result(ra, rb)
+
+
+def test_non_contiguous_and_readonly_inputs(use, numba_kernels):
+    """Strided / read-only user arrays take the general kernel signature: same results."""
+    n, m = 4, 2
+    rng = np.random.default_rng(5)
+    x, P = rng.normal(size=n), _spd(rng, n)
+    H = np.asfortranarray(rng.normal(size=(m, n)))
+    z = rng.normal(size=2 * m)[::2]
+    var = np.array([0.3, 0.5])
+    var.flags.writeable = False
+    obs = Observations().add("s", z, H=H, R=var)
+    (xa, Pa, ra), (xb, Pb, rb) = _both(use, lambda: linearised_update(x, P, obs.blocks))
+    np.testing.assert_allclose(xb, xa, **TOL)
+    np.testing.assert_allclose(Pb, Pa, **TOL)
+    _same_result(ra, rb)
+    F = np.asfortranarray(np.eye(n) + 0.1 * rng.normal(size=(n, n)))
+
+    def run():
+        ekf = ExtendedKalmanFilter(
+            x, P, f=lambda s, dt, u: F @ s, F=lambda s, dt, u: F, Q=np.eye(n)
+        )
+        ekf.predict(0.1)
+        kf = KalmanFilter(x, P, F=F, Q=np.eye(n))
+        kf.predict(0.1)
+        return ekf.x, ekf.P, kf.x, kf.P
+
+    for a, b in zip(*_both(use, run), strict=True):
+        np.testing.assert_allclose(b, a, **TOL)
+
+
+def test_scratch_grows_for_large_states(use, numba_kernels):
+    """n = 70: n^2 exceeds the initial scratch array; the kernels ask for more and retry."""
+    from hera.estimation import stacking
+
+    n = 70
+    rng = np.random.default_rng(70)
+    A = np.eye(n) + 0.01 * rng.normal(size=(n, n))
+    H = rng.normal(size=(2, n))
+    stacking.SCRATCH[0] = np.empty(16)  # as if freshly started with a tiny scratch array
+
+    def run():
+        out = []
+        kf = KalmanFilter(np.zeros(n), np.eye(n), F=A, Q=0.01 * np.eye(n))
+        ekf = ExtendedKalmanFilter(
+            np.zeros(n), np.eye(n), f=lambda s, dt, u: A @ s, F=lambda s, dt, u: A, Q=np.eye(n)
+        )
+        for filt in (kf, ekf):
+            filt.predict(0.1)
+            filt.update(Observations().add("z", [0.5, -0.2], H=H, R=0.3))
+            out += [filt.x, filt.P]
+        return out
+
+    for a, b in zip(*_both(use, run), strict=True):
+        np.testing.assert_allclose(b, a, rtol=1e-10, atol=1e-12)
+    assert stacking.SCRATCH[0].shape[0] >= n * n
+
+
+def test_kernels_reject_inconsistent_shapes(numba_kernels):
+    """Called directly with arrays that do not fit together, the kernels return BAD_SHAPE
+    (never read or write out of bounds); wrong ranks or dtypes are refused by dispatch."""
+    from hera.estimation import kernels_numba as kn
+    from hera.estimation.stacking import EMPTY2, SCRATCH
+
+    k = backend._numba_kernels()
+    n, m = 3, 2
+    x, P, H = np.zeros(n), np.eye(n), np.ones((m, n))
+    z, hx, var = np.ones(m), np.zeros(m), np.ones(m)
+    ws = SCRATCH[0]
+    ok = (x, P, H, z, hx, var, EMPTY2, math.inf, kn.DIAG | kn.JOSEPH | kn.MODE_HX)
+    assert k.lin_update1(*ok, ws, np.empty(n), np.empty((n, n))) >= 0.0
+    bad = [
+        (0, np.zeros(n + 1)),
+        (1, np.eye(n + 1)),
+        (2, np.ones((m, n + 1))),
+        (3, np.ones(m + 1)),
+        (4, np.zeros(m - 1)),
+        (5, np.ones(m + 2)),
+    ]
+    for i, arr in bad:
+        args = list(ok)
+        args[i] = arr
+        got = k.lin_update1(*args, ws, np.empty(n), np.empty((n, n)))
+        assert got == kn.BAD_SHAPE, i
+    assert k.lin_update1(*ok, ws, np.empty(n + 1), np.empty((n, n))) == kn.BAD_SHAPE
+    assert k.lin_update1(*ok, ws, np.empty(n), np.empty((n, n + 1))) == kn.BAD_SHAPE
+    full = list(ok)
+    full[-1] = kn.JOSEPH | kn.MODE_HX  # full R expected: EMPTY2 does not fit
+    assert k.lin_update1(*full, ws, np.empty(n), np.empty((n, n))) == kn.BAD_SHAPE
+    assert k.lin_update1(*ok, np.empty(3), np.empty(n), np.empty((n, n))) == kn.WS_SMALL
+    with pytest.raises(TypeError):
+        k.lin_update1(x, P, H.ravel(), *ok[3:], ws, np.empty(n), np.empty((n, n)))
+    with pytest.raises(TypeError):
+        k.lin_update1(x, P, H.astype(np.float32), *ok[3:], ws, np.empty(n), np.empty((n, n)))
+    Po = np.empty((n, n))
+    assert k.ekf_predict(x, P, np.eye(n + 1), P, ws, Po) == kn.BAD_SHAPE
+    assert k.ekf_predict(np.zeros(n + 1), P, P, P, ws, Po) == kn.BAD_SHAPE
+    assert k.kf_predict(x, P, P, np.eye(n - 1), ws, np.empty(n), Po) == kn.BAD_SHAPE
+    assert k.kf_predict(x, P, P, P, np.empty(2), np.empty(n), Po) == kn.WS_SMALL
+
+
+@pytest.mark.parametrize("name", ["numpy", "numba"])
+def test_wrong_jacobian_shapes_raise_clearly(use, name):
+    if name == "numba":
+        pytest.importorskip("numba")
+    use(name)
+    n = 3
+    ekf = ExtendedKalmanFilter(
+        np.zeros(n), np.eye(n), f=lambda s, dt, u: s, F=lambda s, dt, u: np.eye(2), Q=np.eye(n)
+    )
+    x0, P0 = ekf.x, ekf.P
+    with pytest.raises(ValueError, match="Jacobian F has shape"):
+        ekf.predict(0.1)
+    obs = Observations().add(
+        "r", [1.0], h=lambda s: np.array([s[0]]), jacobian=lambda s: np.ones((1, n + 1)), R=1.0
+    )
+    with pytest.raises(ValueError, match="block 'r'"):
+        ekf.update(obs)
+    assert ekf.x is x0 and ekf.P is P0

@@ -1,0 +1,157 @@
+"""Unit tests of the train models, bilateration, recordings and the fusion measure."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+from hera.models.bilateration import Bilateration, intersect
+from hera.models.measures import TrackGyro
+from hera.models.train import LADDER, TrainTracker
+
+from hera.args import ArgsStore
+from hera.estimation import numerical_jacobian
+from hera.fusion import time_order
+from hera.keys import Keys
+from hera.measure import MeasureContext, MeasureSpec
+from hera.recordings import RecordingError, read_recordings, split_stem
+from hera.store import Sample, Store
+from hera.wire import Message
+
+
+def sample(name, node, seq, t, *values):
+    return Sample(name, node, seq, t, 0.0, 0.0, tuple(float(v) for v in values))
+
+
+def test_intersect_finds_both_points_and_refuses_disjoint_circles():
+    a, b = intersect((0.0, 0.0), 5.0, (8.0, 0.0), 5.0)
+    assert sorted([a, b]) == sorted([(4.0, 3.0), (4.0, -3.0)])
+    assert intersect((0.0, 0.0), 1.0, (5.0, 0.0), 1.0) is None
+    assert intersect((0.0, 0.0), 1.0, (0.1, 0.0), 5.0) is None  # one inside the other
+
+
+def test_bilateration_keeps_the_upper_solution_of_fresh_readings():
+    m = Bilateration(max_age=1.0)
+    p = (0.2, 0.9)  # a target above two sonars on y = -1
+    r1, r2 = math.dist(p, (-0.5, -1.0)), math.dist(p, (0.5, -1.0))
+    assert not m.process(sample("sonar", "s1", 1, 10.0, r1, -0.5, -1.0))
+    assert m.process(sample("sonar", "s2", 1, 10.05, r2, 0.5, -1.0))
+    t, (x, y) = m.estimate()
+    assert t == 10.05 and x == pytest.approx(p[0]) and y == pytest.approx(p[1])
+    # a reading older than max_age is not paired
+    assert not Bilateration(max_age=0.01).process(sample("sonar", "s2", 1, 10.05, r2, 0.5, -1.0))
+
+
+@pytest.mark.parametrize("rung", ["e6", "e8"])
+def test_process_jacobian_matches_a_numerical_one(rung):
+    m = TrainTracker(rung=rung)
+    x = np.array([0.3, -0.4, 0.7, 0.84, 0.61][: m.n])
+    num = numerical_jacobian(lambda s: m._f(s, 0.05), x)
+    assert np.allclose(m._F(x, 0.05), num, atol=1e-6)
+
+
+def test_e4_keeps_the_sign_of_omega0_since_r_w2_cannot_tell():
+    m = TrainTracker(rung="e4", radius=0.6, omega0=0.5)
+    m.ekf.reset(np.array([-0.8]), np.array([[0.5]]))  # as if noise had pushed it through 0
+    m.process(sample("nav", "n", 1, 1.0, 0.6 * 0.84**2, 0.84))
+    assert m.estimate()[1][0] > 0 and m.direction_fixes == 1
+
+
+def test_direction_projection_moves_only_a_wrong_way_state():
+    m = TrainTracker(rung="e6")
+    P = np.diag([1.0, 1.0, 1.0, 0.25]) + 0.1
+    m.ekf.reset(np.array([0.0, 0.6, 1.5, -0.3]), P)
+    m._keep_direction()
+    x = m.ekf.x
+    assert x[3] == pytest.approx(0.0)  # projected onto the constraint w >= 0
+    assert x[0] == pytest.approx(0.0 - P[0, 3] * (-0.3) / P[3, 3])  # correlated states move
+    m.ekf.reset(np.array([0.0, 0.6, 1.5, 0.3]), P)
+    m._keep_direction()
+    assert m.ekf.x[3] == 0.3 and m.direction_fixes == 1
+
+
+def test_sonar_readings_near_the_beam_edge_are_skipped():
+    m = TrainTracker(
+        rung="e7",
+        target_length=0.5,
+        target_radius=0.05,
+        beams={"s1": [0.0, 1.0]},
+        half_angle_deg=20,
+        beam_margin_deg=4,
+    )
+    ahead = np.array([0.0, 0.0, 0.0, 0.84])
+    aside = np.array([1.0, -1.0, 0.0, 0.84])  # 45 deg off the beam axis of a sonar at (0,-1.5)
+    assert m._in_beam("s1", ahead, 0.0, -1.5)
+    assert not m._in_beam("s1", aside, 0.0, -1.5)
+    assert m._in_beam("unknown-sonar", aside, 0.0, -1.5)  # no direction known: kept
+
+
+def test_capsule_range_is_shorter_than_the_point_model_seen_end_on():
+    point = TrainTracker(rung="e6")
+    capsule = TrainTracker(rung="e6", target_length=0.5, target_radius=0.05)
+    x = np.array([0.6, 0.0, 0.0, 0.84])  # at theta 0 the train runs along +y
+    # a sonar straight ahead on the track's tangent sees the train's nose
+    assert point._range(x, 0.6, 1.0) == pytest.approx(1.0)
+    assert capsule._range(x, 0.6, 1.0) == pytest.approx(1.0 - 0.25 - 0.05)
+
+
+def test_samples_older_than_the_filter_by_max_lag_are_dropped_and_counted():
+    m = TrainTracker(rung="e7", max_lag=0.2)
+    assert m.process(sample("nav", "n", 1, 10.0, 0.42, 0.84))
+    assert m.process(sample("nav", "n", 2, 9.9, 0.42, 0.84))  # late, within max_lag
+    assert not m.process(sample("nav", "n", 3, 9.5, 0.42, 0.84))
+    assert (m.out_of_order, m.late) == (1, 1)
+
+
+def test_unknown_rung_and_bad_variances_are_refused():
+    with pytest.raises(ValueError, match="unknown rung 'e42'"):
+        TrainTracker(rung="e42")
+    with pytest.raises(ValueError, match="var_sonar must be > 0"):
+        TrainTracker(var_sonar=0)
+    assert set(LADDER) == {"e4", "e5", "e6", "e7", "e8", "e9"}
+
+
+def test_recordings_parse_names_with_underscores_and_report_bad_rows(tmp_path):
+    (tmp_path / "track_gyro_nav_1.csv").write_text("1,1000.0,0.1,0.2,0.3,0.84\n")
+    assert split_stem("track_gyro_nav_1", ["track_gyro"]) == ("track_gyro", "nav_1")
+    got = read_recordings(tmp_path, ["track_gyro"], known=["track_gyro"])
+    assert [(s.name, s.node, s.seq, s.t) for s in got] == [("track_gyro", "nav_1", 1, 1.0)]
+    (tmp_path / "sonar_s1.csv").write_text("1,1000.0,1.2,0,0\n2,abc,1,2,3\n")
+    with pytest.raises(RecordingError, match=r"sonar_s1.csv:2: expected seq,timestamp_ms"):
+        read_recordings(tmp_path, ["sonar"])
+    with pytest.raises(RecordingError, match="no <name>_<node>.csv"):
+        read_recordings(tmp_path / "missing")
+
+
+def test_time_order_is_total_and_deterministic():
+    a = [sample("b", "n2", 1, 1.0), sample("a", "n1", 2, 1.0), sample("a", "n1", 1, 0.5)]
+    assert [(s.name, s.seq) for s in time_order(a)] == [("a", 1), ("a", 2), ("b", 1)]
+
+
+def test_fusion_measure_in_arrival_mode_fuses_a_late_sample_in_time_order():
+    store = Store()
+    ctx = MeasureContext(
+        node="c",
+        cluster="t",
+        spec=MeasureSpec(name="track_gyro", period=0.01),
+        store=store,
+        args=ArgsStore("c"),
+        session=None,
+        keys=Keys("t"),
+    )
+    m = TrackGyro()
+    m.init({"mode": "arrival", "reorder_s": 0.05}, ctx)
+    seen = []
+    real = m.model.process
+    m.model.process = lambda s: seen.append(s.t) or real(s)
+    t0 = time.time()
+    store.offer("nav", "n", Message(1, t0 + 0.02, (0.42, 0.84)))
+    store.offer("sonar", "s", Message(1, t0, (1.2, 0.3, -1.5)))  # stamped earlier, late
+    deadline = time.monotonic() + 5
+    while len(seen) < 2 and time.monotonic() < deadline:
+        m.measure()
+    assert seen == [t0, t0 + 0.02]
+    assert m.ctx.counters["fused"] == 2
+    m.close()

@@ -1,0 +1,105 @@
+"""Train tracking end to end (thesis ch. 6) on a real 4-node cluster, its replay and scoring.
+
+One 30 s run of deploy/train.toml is shared by the tests of this module. Asserted: every
+model estimates on both nodes that run it; e9 position RMSE at most 5 cm once converged
+(after 10 s); e7 angular-speed RMS error within 1 % after 3 s; the rungs gyro -> radius ->
+magnetometer no worse than the one before on angular speed. (Issue 6 also asks for the e7
+*maximum* error within 1 % and the e8 radius within 1.5 cm: measured but not yet met on
+every run, see the README's train section, so not asserted here.)
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from harness import cluster_env
+
+from hera.evaluate import evaluate
+
+ROOT = Path(__file__).resolve().parents[2]
+NODES = ("computer", "nav_1")  # the models run on both
+
+
+@pytest.fixture(scope="module")
+def train_run(tmp_path_factory) -> Path:
+    tmp = tmp_path_factory.mktemp("train")
+    run = tmp / "run"
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "hera",
+            "up",
+            str(ROOT / "deploy" / "train.toml"),
+            "--duration",
+            "30",
+            "--run-dir",
+            str(run),
+            "--interval",
+            "10",
+        ],
+        env=cluster_env(tmp),
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return run
+
+
+def replay(run: Path, out: Path, tmp: Path) -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "hera", "replay", str(run), "--out", str(out)],
+        env=cluster_env(tmp),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+
+
+def test_live_run_tracks_the_train_on_both_model_nodes(train_run):
+    res = evaluate(train_run)
+    models = ("omega_acc", "track_bilat", "track_sonar", "track_gyro", "track_radius", "track_mag")
+    for node in NODES:
+        for m in models:
+            assert res[(m, node)]["estimates"] > 300, (m, node)  # ~20 Hz for 30 s
+        e7, e8, e9 = (res[(m, node)] for m in ("track_gyro", "track_radius", "track_mag"))
+        assert e7["omega_rms_pct"] <= 1.0, (node, e7)
+        assert e9["pos_rmse_cm"] <= 5.0, (node, e9)
+        # each rung no worse than the one before, on the angular speed every rung estimates
+        # (0.1 percentage point: below the truth's own resolution in the thesis)
+        assert e8["omega_rms_pct"] <= e7["omega_rms_pct"] + 0.1, (node, e7, e8)
+        assert e9["omega_rms_pct"] <= e8["omega_rms_pct"] + 0.1, (node, e8, e9)
+
+
+def test_replay_is_deterministic(train_run, tmp_path):
+    replay(train_run, tmp_path / "a", tmp_path)
+    replay(train_run, tmp_path / "b", tmp_path)
+    files = sorted(p.name for p in (tmp_path / "a" / "measures").glob("*.csv"))
+    assert len(files) >= 7
+    for name in files:
+        a = (tmp_path / "a" / "measures" / name).read_bytes()
+        assert a == (tmp_path / "b" / "measures" / name).read_bytes(), name
+        assert a.count(b"\n") > 100, name
+
+
+def test_eval_cli_prints_every_model_and_draws_plots(train_run, tmp_path):
+    pytest.importorskip("matplotlib")
+    proc = subprocess.run(
+        [sys.executable, "-m", "hera", "eval", str(train_run), "--plots", str(tmp_path / "plots")],
+        env=cluster_env(tmp_path),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr
+    for label in ("omega_acc (e4)", "track_gyro (e7)", "track_mag (e9)"):
+        assert label in proc.stdout
+    pngs = sorted(p.name for p in (tmp_path / "plots").glob("*.png"))
+    assert pngs == ["omega.png", "position_error.png", "radius.png"]
+    assert all(os.path.getsize(tmp_path / "plots" / p) > 10_000 for p in pngs)
