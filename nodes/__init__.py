@@ -13,5 +13,5 @@ Modules (one concern each):
 - :mod:`hera.nodes.calibration`, :mod:`hera.nodes.truth`;
 - measures: :mod:`hera.nodes.nav_measures` (nav, mag, nav3), :mod:`hera.nodes.sonar_measure`.
 
-See ``ERROR_MODELS.md`` beside this file for every model, default and its source.
+The README ("Simulated boards and their error models") lists every model, default and source.
 """

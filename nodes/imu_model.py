@@ -1,5 +1,6 @@
 """Error model of the simulated Pmod NAV (LSM9DS1 accelerometer/gyroscope/magnetometer and
-LPS25HB barometer), in the driver's units. Sources of every default: ``ERROR_MODELS.md``.
+LPS25HB barometer), in the driver's units.
+Sources of every default: the README, "Simulated boards and their error models".
 
 Reading models (board frame, see :mod:`hera.nodes.driver`):
 

@@ -3,7 +3,8 @@
 A ping returns the distance to the **nearest surface** of the target inside the beam (a cone
 of half-angle ``half_angle_deg`` around the pointing direction), plus white noise, rounded to
 whole inches and clamped to the sensor's limits; with no target in the beam it returns the
-background (or the maximum range). Sources of every default: ``ERROR_MODELS.md``.
+background (or the maximum range).
+Sources of every default: the README, "Simulated boards and their error models".
 """
 
 from __future__ import annotations

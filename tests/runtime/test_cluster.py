@@ -271,7 +271,7 @@ def test_up_with_duration_exits_zero_and_leaves_nothing(cluster, tmp_path):
     c = cluster(
         five_nodes(tmp_path).replace('name = "five"', 'name = "dur"'), duration=4, connect=False
     )
-    wait_for(lambda: (tmp_path / "run" / "launcher.json").exists(), 10, "launcher up")
+    wait_for(c._mine, 10, "launcher up")
     pids = wait_for(
         lambda: (
             [n["pid"] for n in c.launcher_state().values() if n["pid"]]
@@ -320,3 +320,77 @@ def test_down_from_another_terminal_stops_the_cluster(cluster, tmp_path):
         timeout=30,
     )
     assert again.returncode == 2 and "no running cluster" in again.stderr
+
+
+def test_whole_cluster_restart_keeps_the_args_without_recalibrating(cluster, tmp_path):
+    """Args are persisted under each node's state dir: a second run of the whole cluster in
+    the same run dir finds every calibration and calibrates nothing again."""
+    spec = five_nodes(tmp_path).replace('name = "five"', 'name = "again"')
+    first = cluster(spec, name="run")
+    wait_for(lambda: len(first.control("n1", "args", {})["args"]) == 5, 10, "5 calibrations")
+    first.stop()
+    assert len((tmp_path / "calib.log").read_text().splitlines()) == 5
+    second = cluster(spec, name="run")  # same run dir: same state dirs
+    wait_for(lambda: seen_everywhere(second), 10, "the second run settled")
+    assert len((tmp_path / "calib.log").read_text().splitlines()) == 5
+    assert len(second.control("n3", "args", {})["args"]) == 5
+
+
+def test_launcher_gives_up_on_a_node_that_keeps_dying(cluster, tmp_path):
+    """Like systemd's start limit: at most 5 starts within 10 s, then the node stays failed
+    while the rest of the cluster runs on."""
+    c = cluster(
+        f"""
+[cluster]
+name = "limit"
+[supervisor]
+intensity = 0
+[[nodes]]
+name = "ok"
+[[nodes.measures]]
+use = "counter"
+name = "obs1"
+[[nodes]]
+name = "bad"
+[[nodes.measures]]
+use = "fixture_measures:Crasher"
+name = "crasher"
+args = {{ crash_at = 1, init_log = "{tmp_path / "init.log"}" }}
+""",
+        connect=False,
+    )
+    wait_for(c._mine, 10, "launcher up")
+    wait_for(lambda: c.launcher_state()["bad"]["state"] == "failed", 20, "the start limit")
+    state = c.launcher_state()
+    assert state["bad"]["restarts"] == 4 and state["bad"]["last_exit"] == 3
+    assert len((tmp_path / "init.log").read_text().splitlines()) == 5
+    assert state["ok"]["state"] == "up" and state["ok"]["restarts"] == 0
+
+
+def test_unknown_measure_fails_before_anything_starts(tmp_path):
+    spec = tmp_path / "bad.toml"
+    spec.write_text(
+        '[cluster]\nname = "u"\n[[nodes]]\nname = "a"\n'
+        '[[nodes.measures]]\nuse = "no_such_measure"\n'
+    )
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "hera",
+            "up",
+            str(spec),
+            "--duration",
+            "5",
+            "--run-dir",
+            str(tmp_path / "run"),
+        ],
+        env=cluster_env(tmp_path),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 2
+    assert "unknown measure 'no_such_measure'; known measures:" in out.stderr
+    assert "counter" in out.stderr
+    assert not (tmp_path / "run" / "launcher.json").exists()

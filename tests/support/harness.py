@@ -64,14 +64,23 @@ class Cluster:
         self.out = open(run_dir.parent / f"{run_dir.name}-launcher.log", "w")  # noqa: SIM115
         self.proc = subprocess.Popen(cmd, env=env, stdout=self.out, stderr=subprocess.STDOUT)
         self.client = None
+        self.stopped = False
 
     def connect(self, timeout: float = 20.0) -> None:
         from hera.client import ClusterClient
 
-        wait_for(lambda: (self.run_dir / "launcher.json").exists(), timeout, "launcher.json")
+        wait_for(self._mine, timeout, "this launcher's launcher.json")
         self.client = ClusterClient.from_run_dir(self.run_dir)
         n = len(self.client.spec.nodes)
         wait_for(lambda: len(self.client.status(0.5)) == n, timeout, f"{n} nodes answering")
+
+    def _mine(self) -> bool:
+        """Whether launcher.json is this launcher's (a previous run may have left one)."""
+        try:
+            state = json.loads((self.run_dir / "launcher.json").read_text())
+        except (OSError, ValueError):
+            return False
+        return state.get("launcher_pid") == self.proc.pid
 
     def launcher_state(self) -> dict:
         return json.loads((self.run_dir / "launcher.json").read_text())["nodes"]
@@ -86,6 +95,10 @@ class Cluster:
         return self.client.query(node, verb, request)[node]
 
     def stop(self) -> None:
+        """Stop the launcher; fail if any of its nodes is still alive. Idempotent."""
+        if self.stopped:
+            return
+        self.stopped = True
         node_pids = _descendants(self.proc.pid)
         if self.client is not None:
             self.client.close()
