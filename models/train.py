@@ -108,6 +108,10 @@ class TrainTracker:
         beams: dict[str, list[float]] | None = None,
         half_angle_deg: float = 20.0,
         beam_margin_deg: float = 4.0,
+        var_sonar_track: float | None = 1e-3,
+        lock_var_theta: float = 0.01,
+        gyro_scale_var0: float | None = 1e-4,
+        q_scale: float = 1e-9,
     ) -> None:
         if rung not in LADDER:
             raise ValueError(f"unknown rung {rung!r}: use one of {', '.join(RUNGS)}")
@@ -117,6 +121,7 @@ class TrainTracker:
             ("var_sonar", var_sonar),
             ("var_mag", var_mag),
             ("var_bilat", var_bilat),
+            ("var_sonar_track", var_sonar if var_sonar_track is None else var_sonar_track),
         ):
             if not v > 0:
                 raise ValueError(f"{label} must be > 0, got {v!r}")
@@ -131,12 +136,14 @@ class TrainTracker:
             "sonar": var_sonar,
             "mag": var_mag,
             "bilat": var_bilat,
+            "sonar_track": var_sonar if var_sonar_track is None else var_sonar_track,
         }
+        self.lock_var_theta = float(lock_var_theta)
         self.half_length = target_length / 2.0
         self.target_radius = target_radius
         if q_omega is None:  # e6 infers omega from the sonars alone: let it follow them faster
             q_omega = 1e-4 if rung == "e6" else 1e-6
-        self.q = (q_theta, q_omega, q_radius, q_xy)
+        self.q = (q_theta, q_omega, q_radius, q_xy, q_scale)
         self.gate = gate
         self.max_lag = max_lag
         self.beams = {}
@@ -159,6 +166,14 @@ class TrainTracker:
             x0, p0 = [0.0, 0.0, 0.0, omega0], [2.0, 2.0, math.pi, 1.0]
             if r.radius_state:
                 x0, p0 = [*x0, self.radius], [*p0, float(radius_var0)]
+        self.n_out = len(x0)
+        # optional hidden state (not an output column): the gyro's scale error k, g = (1 + k) w
+        self.k_i: int | None = None
+        if r.gyro and gyro_scale_var0 is not None:
+            if not gyro_scale_var0 > 0:
+                raise ValueError(f"gyro_scale_var0 must be > 0 or None, got {gyro_scale_var0!r}")
+            self.k_i = len(x0)
+            x0, p0 = [*x0, 0.0], [*p0, float(gyro_scale_var0)]
         self.n = len(x0)
         self.ekf = ExtendedKalmanFilter(
             np.array(x0), np.diag(p0), self._f, np.zeros((self.n, self.n)), F=self._F
@@ -207,10 +222,12 @@ class TrainTracker:
         return F
 
     def _Q(self, dt: float) -> np.ndarray:
-        q_th, q_w, q_r, q_xy = self.q
+        q_th, q_w, q_r, q_xy, q_k = self.q
         if self.n == 1:
             return np.array([[q_w * dt]])
         diag = [q_xy, q_xy, q_th * dt, q_w * dt] + ([q_r * dt] if self.rung.radius_state else [])
+        if self.k_i is not None:
+            diag.append(q_k * dt)
         return np.diag(diag)
 
     # -- observation blocks -------------------------------------------------------------
@@ -257,9 +274,35 @@ class TrainTracker:
         norm = math.hypot(dx, dy)
         return norm > 0 and (dx * d[0] + dy * d[1]) / norm >= self.beam_cos
 
+    def sonar_var(self) -> float:
+        """Variance of a sonar row now: ``var_sonar`` while theta is still being acquired
+        (P_theta above ``lock_var_theta``: a large R keeps the linearised update of the
+        multi-modal range(theta) from jumping to a wrong branch), ``var_sonar_track`` (close to
+        the sonar's real error) once theta is known well enough for the linearisation."""
+        if self.n > 1 and self.ekf.P[2, 2] < self.lock_var_theta:
+            return self.var["sonar_track"]
+        return self.var["sonar"]
+
     def _sonar_block(self, obs: Observations, label: str, values: tuple[float, ...]) -> None:
         rng, px, py = values[0], values[1], values[2]
-        obs.add(label, [rng], h=lambda s: np.array([self._range(s, px, py)]), R=self.var["sonar"])
+        obs.add(label, [rng], h=lambda s: np.array([self._range(s, px, py)]), R=self.sonar_var())
+
+    def _gyro_block(self, obs: Observations, g: float, x: np.ndarray) -> None:
+        w_i = 0 if self.n == 1 else 3
+        H = np.zeros((1, self.n))
+        if self.k_i is None:
+            H[0, w_i] = 1.0
+            obs.add("gyro", [g], H=H, R=self.var["gyro"])
+            return
+        k_i = self.k_i
+        H[0, w_i], H[0, k_i] = 1.0 + float(x[k_i]), float(x[w_i])
+        obs.add(
+            "gyro",
+            [g],
+            h=lambda s: np.array([(1.0 + s[k_i]) * s[w_i]]),
+            jacobian=lambda s, H=H: H,
+            R=self.var["gyro"],
+        )
 
     # -- the model interface ------------------------------------------------------------
     def process(self, sample: Sample) -> bool:
@@ -283,10 +326,7 @@ class TrainTracker:
         if sample.name == "nav" and len(v) >= 2:
             self._acc_block(obs, v[0], x)
             if self.rung.gyro:
-                w_i = 0 if self.n == 1 else 3
-                H = np.zeros((1, self.n))
-                H[0, w_i] = 1.0
-                obs.add("gyro", [v[1]], H=H, R=self.var["gyro"])
+                self._gyro_block(obs, v[1], x)
         elif sample.name == "sonar" and len(v) >= 3:
             if not self._in_beam(sample.node, x, v[1], v[2]):
                 self.beam_edge += 1
@@ -330,7 +370,7 @@ class TrainTracker:
         """(time, state) of the latest estimate, theta wrapped to (-pi, pi]."""
         if self.t is None:
             return None
-        x = [float(v) for v in self.ekf.x]
+        x = [float(v) for v in self.ekf.x[: self.n_out]]
         if self.n > 1:
             x[2] = math.atan2(math.sin(x[2]), math.cos(x[2]))
         return self.t, x

@@ -1,0 +1,69 @@
+"""Train tracking goes on while a sonar node is SIGKILLed and comes back (issue 6)."""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import time
+from pathlib import Path
+
+from harness import wait_for
+from hera.models.train import truth_columns
+
+from hera.evaluate import load_outputs, world_of
+from hera.recordings import read_recordings
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _rms_cm(rows, world, lo, hi):
+    errs = [
+        math.hypot(v[0] - tr["x [m]"], v[1] - tr["y [m]"])
+        for t, v in rows
+        if lo <= t < hi
+        for tr in (truth_columns(world, t),)
+    ]
+    assert errs, (lo, hi)
+    return 100 * math.sqrt(sum(e * e for e in errs) / len(errs))
+
+
+def test_e7_keeps_tracking_through_a_sonar_node_kill(cluster):
+    c = cluster((ROOT / "deploy" / "train.toml").read_text(), name="run")
+    wait_for(
+        lambda: c.status("computer")["measures"]["track_gyro"]["published"] > 300,
+        40,
+        "15 s of e7 estimates",
+    )
+    t_kill = time.time()
+    os.kill(c.pid("sonar_1"), signal.SIGKILL)
+    wait_for(lambda: c.launcher_state()["sonar_1"]["restarts"] == 1, 10, "sonar_1 restarted")
+
+    def sonar_1_published() -> int:
+        """Samples the restarted sonar_1 published (-1 while it does not answer yet)."""
+        reply = c.client.query("sonar_1", "status", timeout=0.5).get("sonar_1")
+        return -1 if reply is None else reply["measures"]["sonar"]["published"]
+
+    wait_for(lambda: sonar_1_published() > 40, 30, "sonar_1 publishing again")
+    c.stop()
+
+    run = c.run_dir
+    world = world_of(run)
+    sonar_1 = [s.t for s in read_recordings(run, ["sonar"]) if s.node == "sonar_1"]
+    t_back = min(t for t in sonar_1 if t > t_kill)
+    assert t_back - t_kill < 5.0  # the node is back (launcher restart + sync grant)
+    fault_end = t_back + 5.0
+    for s in load_outputs(run):
+        if s.name != "track_gyro":
+            continue
+        t0 = s.rows[0][0]
+        # estimates never stop while the node is down
+        during = [t for t, _ in s.rows if t_kill - 1 <= t <= fault_end]
+        assert max(b - a for a, b in zip(during, during[1:], strict=False)) < 0.5, s.node
+        settled = [(t, v) for t, v in s.rows if t >= t0 + 10]
+        outside = [(t, v) for t, v in settled if not t_kill <= t < fault_end]
+        baseline = _rms_cm(outside, world, t0 + 10, float("inf"))
+        fault = _rms_cm(settled, world, t_kill, fault_end)
+        after = _rms_cm(settled, world, fault_end, float("inf"))
+        assert fault <= 2 * baseline, (s.node, fault, baseline)
+        assert after <= 2 * baseline, (s.node, after, baseline)
