@@ -12,7 +12,11 @@ Semantics follow OTP's supervisor (REFERENCE "Core framework"):
   the launcher restarts it);
 - a child whose step runs longer than ``hang_factor * period`` (at least ``hang_min`` s) is
   reported hung, abandoned (it can never publish again) and replaced, which counts as a
-  restart.
+  restart;
+- backoff (not in OTP): a child that crashes again less than ``FAST_CRASH_S`` after it was
+  started waits before its next start, 50 ms doubling up to 2 s, so a measure whose sensor
+  is unplugged does not burn the whole restart intensity within milliseconds. Its first
+  restart is always immediate.
 
 A restarted child is re-created from its original arguments (the ``start`` callable of its
 :class:`Child` is fixed when the child is added), so a calibration is never redone.
@@ -34,6 +38,17 @@ from hera.worker import Worker
 log = logging.getLogger("hera.supervisor")
 
 STRATEGIES = ("one_for_one", "one_for_all", "rest_for_one")
+FAST_CRASH_S = 1.0
+BACKOFF_FIRST_S = 0.05
+BACKOFF_MAX_S = 2.0
+
+
+def backoff_delay(fast_crashes: int) -> float:
+    """Seconds to wait before restarting a child after its ``fast_crashes``-th consecutive
+    crash within FAST_CRASH_S of its start: 0 for the first, then 50 ms doubling to 2 s."""
+    if fast_crashes <= 1:
+        return 0.0
+    return min(BACKOFF_FIRST_S * 2 ** (fast_crashes - 2), BACKOFF_MAX_S)
 
 
 @dataclass
@@ -44,13 +59,14 @@ class Child:
     start: Callable[[Callable[[Worker, BaseException | None], None]], Worker]
     restart: str = "permanent"
     worker: Worker | None = None
-    state: str = "stopped"  # running | stopped | done | failed
+    state: str = "stopped"  # running | restarting | stopped | done | failed
     restarts: int = 0
     hangs: int = 0
     crashes: int = 0
     last_error: str | None = None
     last_restart_ms: float | None = None
     last_exit_at: float | None = None  # monotonic time the previous worker ended or hung
+    fast_crashes: int = 0  # consecutive crashes within FAST_CRASH_S of a start
     stopped_by_request: bool = field(default=False, repr=False)
 
     @property
@@ -84,6 +100,7 @@ class Supervisor:
         self.escalated: str | None = None
         self._on_escalate = on_escalate
         self._restarts: deque[float] = deque()
+        self._pending: list[tuple[float, Child, str]] = []  # delayed restarts (backoff)
         self._events: queue.Queue[tuple[Worker, BaseException | None] | None] = queue.Queue()
         self._lock = threading.RLock()
         self._hang_check = hang_check
@@ -106,8 +123,9 @@ class Supervisor:
         """(Re)start a stopped or finished child; it keeps its original arguments."""
         with self._lock:
             child = self._get(child_id)
-            if child.state == "running":
-                raise ValueError(f"measure {child_id!r} is already running")
+            if child.state in ("running", "restarting"):
+                raise ValueError(f"measure {child_id!r} is already {child.state}")
+            child.fast_crashes = 0
             self._start(child)
 
     def stop_child(self, child_id: str) -> None:
@@ -115,6 +133,7 @@ class Supervisor:
         with self._lock:
             child = self._get(child_id)
             child.stopped_by_request = True
+            self._pending = [p for p in self._pending if p[1] is not child]
             if child.worker is not None:
                 child.worker.stop()
             child.state = "stopped"
@@ -159,8 +178,12 @@ class Supervisor:
 
     def _watch(self) -> None:
         while True:
+            timeout = self._hang_check
+            if self._pending:
+                due = min(p[0] for p in self._pending) - time.monotonic()
+                timeout = max(0.0, min(timeout, due))
             try:
-                event = self._events.get(timeout=self._hang_check)
+                event = self._events.get(timeout=timeout)
             except queue.Empty:
                 event = False
             if event is None:
@@ -170,7 +193,15 @@ class Supervisor:
                     continue
                 if event:
                     self._handle_exit(*event)
+                self._start_due()
                 self._check_hangs()
+
+    def _start_due(self) -> None:
+        now = time.monotonic()
+        due = [p for p in self._pending if p[0] <= now]
+        self._pending = [p for p in self._pending if p[0] > now]
+        for _, child, reason in due:
+            self._restart_group(child, reason)
 
     def _child_of(self, worker: Worker) -> Child | None:
         for c in self.children.values():
@@ -191,6 +222,8 @@ class Supervisor:
         else:
             child.crashes += 1
             child.last_error = worker.error
+            lived = worker.ended_at - worker.started_at  # ended_at is set before the report
+            child.fast_crashes = child.fast_crashes + 1 if lived < FAST_CRASH_S else 0
             if child.restart == "temporary":
                 child.state = "failed"
                 return
@@ -229,6 +262,14 @@ class Supervisor:
             if self._on_escalate is not None:
                 self._on_escalate(self.escalated)
             return
+        delay = backoff_delay(child.fast_crashes)
+        if delay > 0:
+            child.state = "restarting"
+            self._pending.append((now + delay, child, reason))
+            return
+        self._restart_group(child, reason)
+
+    def _restart_group(self, child: Child, reason: str) -> None:
         ids = list(self.children)
         if self.strategy == "one_for_one":
             group = [child]
@@ -240,7 +281,7 @@ class Supervisor:
             if c is not child and c.worker is not None and c.state == "running":
                 c.worker.abandoned = True
                 c.worker.stop()
-            if c is child or c.state == "running":
+            if c is child or c.state in ("running", "restarting"):
                 c.restarts += 1
                 c.last_restart_ms = round(time.time() * 1e3)
                 self._start(c)

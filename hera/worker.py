@@ -93,6 +93,7 @@ class Worker:
         self.spec = ctx.spec
         self.stats = WorkerStats()
         self.step_started: float | None = None
+        self.started_at = time.monotonic()
         self.first_step_at: float | None = None
         self.ended_at: float | None = None
         self.abandoned = False
@@ -108,6 +109,7 @@ class Worker:
         )
 
     def start(self) -> None:
+        self.started_at = time.monotonic()
         self.thread.start()
 
     def stop(self) -> None:

@@ -35,7 +35,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hera.estimation import ExtendedKalmanFilter, Observations, angle_residual
+from hera.estimation import (
+    ExtendedKalmanFilter,
+    Observations,
+    angle_residual,
+    numerical_jacobian,
+)
 from hera.store import Sample
 
 RUNGS = ("e4", "e5", "e6", "e7", "e8", "e9")
@@ -110,6 +115,8 @@ class TrainTracker:
         beam_margin_deg: float = 4.0,
         var_sonar_track: float | None = 1e-3,
         lock_var_theta: float = 0.01,
+        lock_count: int = 8,
+        unlock_count: int = 4,
         gyro_scale_var0: float | None = 1e-4,
         q_scale: float = 1e-9,
     ) -> None:
@@ -139,6 +146,11 @@ class TrainTracker:
             "sonar_track": var_sonar if var_sonar_track is None else var_sonar_track,
         }
         self.lock_var_theta = float(lock_var_theta)
+        self.lock_count, self.unlock_count = int(lock_count), int(unlock_count)
+        self.locked = False
+        self._streak = 0  # consecutive sonar rows consistent with the tracking variance
+        self._misses = 0  # consecutive sonar rows gated out while locked
+        self.unlocks = 0
         self.half_length = target_length / 2.0
         self.target_radius = target_radius
         if q_omega is None:  # e6 infers omega from the sonars alone: let it follow them faster
@@ -279,9 +291,38 @@ class TrainTracker:
         (P_theta above ``lock_var_theta``: a large R keeps the linearised update of the
         multi-modal range(theta) from jumping to a wrong branch), ``var_sonar_track`` (close to
         the sonar's real error) once theta is known well enough for the linearisation."""
-        if self.n > 1 and self.ekf.P[2, 2] < self.lock_var_theta:
-            return self.var["sonar_track"]
-        return self.var["sonar"]
+        return self.var["sonar_track"] if self.locked else self.var["sonar"]
+
+    def _update_lock(self, x: np.ndarray, rng: float, px: float, py: float) -> None:
+        """Before a sonar row: lock (switch to ``var_sonar_track``) once ``lock_count``
+        successive readings are consistent with that variance (NIS < 6.63, 99 %) while
+        P_theta < ``lock_var_theta``: a P that merely shrank is not enough, a filter that
+        converged on a wrong branch is confident too, its innovations are what betray it."""
+        if self.locked or self.var["sonar_track"] == self.var["sonar"]:
+            return
+        h = lambda s: np.array([self._range(s, px, py)])  # noqa: E731
+        H = numerical_jacobian(h, x, 1)
+        S = float((H @ self.ekf.P @ H.T)[0, 0]) + self.var["sonar_track"]
+        nu = rng - float(h(x)[0])
+        self._streak = self._streak + 1 if nu * nu < 6.63 * S else 0
+        if self._streak >= self.lock_count and self.ekf.P[2, 2] < self.lock_var_theta:
+            self.locked = True
+            self._misses = 0
+
+    def _after_sonar(self, rejected: bool) -> None:
+        """After a sonar row: ``unlock_count`` successive gated-out readings while locked
+        mean the track was lost: back to acquisition (``var_sonar``), theta's variance
+        widened so that the sonars can pull it back."""
+        if not self.locked:
+            return
+        self._misses = self._misses + 1 if rejected else 0
+        if self._misses >= self.unlock_count:
+            self.locked = False
+            self._streak = 0
+            self.unlocks += 1
+            P = self.ekf.P.copy()
+            P[2, 2] += self.lock_var_theta * 25.0
+            self.ekf.reset(self.ekf.x, P)
 
     def _sonar_block(self, obs: Observations, label: str, values: tuple[float, ...]) -> None:
         rng, px, py = values[0], values[1], values[2]
@@ -331,6 +372,7 @@ class TrainTracker:
             if not self._in_beam(sample.node, x, v[1], v[2]):
                 self.beam_edge += 1
                 return False
+            self._update_lock(x, v[0], v[1], v[2])
             self._sonar_block(obs, f"sonar@{sample.node}", v)
         elif sample.name == "mag" and len(v) >= 1:
             H = np.zeros((1, self.n))
@@ -346,6 +388,8 @@ class TrainTracker:
         gated = sample.name in ("sonar", "bilateration") and self.gate is not None
         result = self.ekf.update(obs, gate=self.gate if gated else None)
         self.rejected += len(result.rejected)
+        if sample.name == "sonar":
+            self._after_sonar(bool(result.rejected))
         self._keep_direction()
         return True
 

@@ -23,6 +23,7 @@ class Steps(Measure):
         super().init(args, ctx)
         self.args = args
         self.n = 0
+        self.started = time.monotonic()
         args["inits"].append(self)
 
     def measure(self):
@@ -200,5 +201,42 @@ def test_stop_and_start_child():
             sup.start_child("a")
         with pytest.raises(ValueError, match=r"no measure 'zz' .*measures: a"):
             sup.stop_child("zz")
+    finally:
+        sup.shutdown()
+
+
+def test_a_child_that_keeps_failing_at_once_backs_off():
+    """First restart immediate; later ones wait 50 ms, 100 ms, 200 ms ... (lower bounds
+    only: a loaded machine can only make the gaps longer)."""
+    from hera.supervisor import backoff_delay
+
+    sup = Supervisor(intensity=100, period=60)
+    args, pub = {"inits": [], "crash_at": 1}, []
+    sup.add(make_child("a", args, pub, period=0.001))
+    starts: list[float] = []
+    try:
+        wait_for(lambda: len(args["inits"]) >= 5, 10, "5 starts")
+        starts = [m.started for m in args["inits"][:5]]
+        assert sup.children["a"].fast_crashes >= 4
+        assert sup.children["a"].state in ("running", "restarting")
+    finally:
+        sup.shutdown()
+    gaps = [b - a for a, b in zip(starts, starts[1:], strict=False)]
+    for k, gap in enumerate(gaps, start=1):
+        assert gap >= backoff_delay(k) - 0.005, (k, gaps)
+    assert [backoff_delay(k) for k in range(1, 8)] == [0.0, 0.05, 0.1, 0.2, 0.4, 0.8, 1.6]
+    assert backoff_delay(20) == 2.0
+
+
+def test_stop_cancels_a_pending_restart():
+    sup = Supervisor(intensity=100, period=60)
+    args, pub = {"inits": [], "crash_at": 1}, []
+    sup.add(make_child("a", args, pub, period=0.001))
+    try:
+        wait_for(lambda: sup.children["a"].state == "restarting", 10, "a delayed restart")
+        sup.stop_child("a")
+        n = len(args["inits"])
+        time.sleep(0.3)  # longer than any pending delay so far: nothing may start
+        assert len(args["inits"]) == n and sup.children["a"].state == "stopped"
     finally:
         sup.shutdown()
