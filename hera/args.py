@@ -25,6 +25,7 @@ from typing import Any
 
 import msgpack
 
+from hera.bus import query_all
 from hera.keys import Keys, check_chunk
 
 log = logging.getLogger("hera.args")
@@ -92,20 +93,10 @@ class ArgsStore:
         """Ask every live peer for all entries and merge them; return how many were new."""
         if self._session is None:
             return 0
-        import zenoh
-
         merged = 0
-        replies = self._session.get(
-            self._keys.args("**"),
-            target=zenoh.QueryTarget.ALL_COMPLETE,
-            consolidation=zenoh.ConsolidationMode.NONE,
-            timeout=timeout,
-        )
-        for reply in replies:
-            if reply.ok is None:
-                continue
-            key = self._key_of(str(reply.ok.key_expr))
-            entry = _unpack(reply.ok.payload.to_bytes())
+        for sample in query_all(self._session, self._keys.args("**"), timeout):
+            key = self._key_of(str(sample.key_expr))
+            entry = _unpack(sample.payload.to_bytes())
             if key is None or entry is None:
                 self.rejected += 1
                 continue

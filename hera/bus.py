@@ -63,6 +63,33 @@ def open_session(config: BusConfig) -> zenoh.Session:
     return zenoh.open(config.to_zenoh())
 
 
+def query_all(
+    session: zenoh.Session,
+    selector: str,
+    timeout: float,
+    payload: str | bytes | None = None,
+    complete: bool = True,
+):
+    """Ask every queryable matching ``selector`` and yield each successful reply's sample.
+
+    ``complete=True`` asks the queryables that declared themselves complete for the whole
+    selector (a node's ``args/**``); ``False`` asks every matching one (``ctl/*/status``
+    reaches nodes whose queryable is ``ctl/<node>/*``, which does not include the query).
+    Replies are not consolidated: every node answers.
+    """
+    target = zenoh.QueryTarget.ALL_COMPLETE if complete else zenoh.QueryTarget.ALL
+    extra = {} if payload is None else {"payload": payload}
+    for reply in session.get(
+        selector,
+        target=target,
+        consolidation=zenoh.ConsolidationMode.NONE,
+        timeout=timeout,
+        **extra,
+    ):
+        if reply.ok is not None:
+            yield reply.ok
+
+
 def tcp_endpoint(host: str, port: int) -> str:
     """Return the Zenoh endpoint string for a TCP address."""
     return f"tcp/{host}:{int(port)}"

@@ -14,9 +14,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-import zenoh
-
-from hera.bus import BusConfig, open_session
+from hera.bus import BusConfig, open_session, query_all
 from hera.keys import Keys
 from hera.spec import ClusterSpec, load_spec
 
@@ -92,22 +90,17 @@ class ClusterClient:
         self, node: str, verb: str, request: dict | None = None, timeout: float = 1.0
     ) -> dict[str, dict[str, Any]]:
         """Send a control query to ``node`` (``*`` for all); replies by node name."""
-        payload = json.dumps(request or {})
         out: dict[str, dict[str, Any]] = {}
-        for reply in self.session.get(
+        replies = query_all(
+            self.session,
             self.keys.ctl(node, verb),
-            payload=payload,
-            # ALL, not ALL_COMPLETE: a node's queryable ctl/<node>/* does not include a
-            # query on ctl/*/status, so ALL_COMPLETE would skip every node.
-            target=zenoh.QueryTarget.ALL,
-            consolidation=zenoh.ConsolidationMode.NONE,
-            timeout=timeout,
-        ):
-            if reply.ok is None:
-                continue
-            key = str(reply.ok.key_expr)
+            timeout,
+            payload=json.dumps(request or {}),
+            complete=False,
+        )
+        for sample in replies:
             with contextlib.suppress(ValueError):
-                out[key.split("/")[-2]] = json.loads(reply.ok.payload.to_bytes())
+                out[str(sample.key_expr).split("/")[-2]] = json.loads(sample.payload.to_bytes())
         return out
 
     def status(self, timeout: float = 1.0) -> dict[str, dict[str, Any]]:

@@ -31,7 +31,7 @@ import zenoh
 
 from hera import wire
 from hera.args import ArgsStore
-from hera.bus import BusConfig, open_session, tcp_endpoint
+from hera.bus import BusConfig, open_session, query_all, tcp_endpoint
 from hera.csvlog import CsvLog
 from hera.keys import Keys
 from hera.measure import MeasureContext, MeasureSpec, Reading
@@ -139,21 +139,13 @@ class Node:
         if not self.peers:
             return
         got = self.args.recover(timeout=RECOVERY_TIMEOUT)
-        replies = self.session.get(
-            self.keys.seq("*", self.name),
-            target=zenoh.QueryTarget.ALL_COMPLETE,
-            consolidation=zenoh.ConsolidationMode.NONE,
-            timeout=RECOVERY_TIMEOUT,
-        )
-        for reply in replies:
-            if reply.ok is None:
-                continue
+        for sample in query_all(self.session, self.keys.seq("*", self.name), RECOVERY_TIMEOUT):
             try:
-                seqs = msgpack.unpackb(reply.ok.payload.to_bytes(), raw=False)
+                seqs = msgpack.unpackb(sample.payload.to_bytes(), raw=False)
                 for name, seq in seqs.items():
                     if isinstance(seq, int) and seq > self._seq.get(name, 0):
                         self._seq[name] = seq
-            except Exception as e:
+            except Exception as e:  # a peer's bad reply must not stop this node's start
                 log.warning("ignoring malformed seq reply: %s", e)
         log.info("recovered %d args and seqs %s from %s", got, self._seq, sorted(self.peers))
 

@@ -118,6 +118,7 @@ class TrainTracker:
         lock_count: int = 8,
         unlock_count: int = 4,
         gyro_scale_var0: float | None = 1e-4,
+        q_theta_track: float | None = 1e-5,
         q_scale: float = 1e-9,
     ) -> None:
         if rung not in LADDER:
@@ -156,6 +157,7 @@ class TrainTracker:
         if q_omega is None:  # e6 infers omega from the sonars alone: let it follow them faster
             q_omega = 1e-4 if rung == "e6" else 1e-6
         self.q = (q_theta, q_omega, q_radius, q_xy, q_scale)
+        self.q_theta_track = q_theta if q_theta_track is None else float(q_theta_track)
         self.gate = gate
         self.max_lag = max_lag
         self.beams = {}
@@ -235,6 +237,8 @@ class TrainTracker:
 
     def _Q(self, dt: float) -> np.ndarray:
         q_th, q_w, q_r, q_xy, q_k = self.q
+        if self.locked:
+            q_th = self.q_theta_track
         if self.n == 1:
             return np.array([[q_w * dt]])
         diag = [q_xy, q_xy, q_th * dt, q_w * dt] + ([q_r * dt] if self.rung.radius_state else [])
@@ -336,7 +340,9 @@ class TrainTracker:
             obs.add("gyro", [g], H=H, R=self.var["gyro"])
             return
         k_i = self.k_i
-        H[0, w_i], H[0, k_i] = 1.0 + float(x[k_i]), float(x[w_i])
+        # k is learnt only while locked (theta's progression from the sonars then tells w
+        # from the gyro's scale); before, it is held at its estimate, uncorrelated
+        H[0, w_i], H[0, k_i] = 1.0 + float(x[k_i]), float(x[w_i]) if self.locked else 0.0
         obs.add(
             "gyro",
             [g],

@@ -36,7 +36,6 @@ import importlib
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -46,6 +45,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from hera.launcher import free_ports
 
 STATUS_EVERY = 0.05
 
@@ -265,21 +266,6 @@ def main(argv: list[str] | None = None) -> int:
 # ------------------------------------------------------------------------------------------
 
 
-def free_ports(n: int) -> list[int]:
-    """``n`` distinct TCP ports free on 127.0.0.1 right now."""
-    socks, ports = [], []
-    try:
-        for _ in range(n):
-            s = socket.socket()
-            s.bind(("127.0.0.1", 0))
-            socks.append(s)
-            ports.append(s.getsockname()[1])
-    finally:
-        for s in socks:
-            s.close()
-    return ports
-
-
 @dataclass
 class Firing:
     start: float
@@ -400,7 +386,7 @@ class Cluster:
         self.measures = measures or {n: [("m", slot_ms)] for n in self.nodes}
         self._tmp = None if workdir else tempfile.TemporaryDirectory(prefix="hera-sync-")
         self.dir = Path(workdir or self._tmp.name)  # type: ignore[union-attr]
-        self.ports = dict(zip(self.nodes, free_ports(len(self.nodes)), strict=False))
+        self.ports = dict(zip(self.nodes, free_ports("127.0.0.1", len(self.nodes)), strict=False))
         self.procs: dict[str, subprocess.Popen] = {}
         self.stopped: set[str] = set()
         self._expected_dead: set[str] = set()

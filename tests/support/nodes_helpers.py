@@ -37,12 +37,14 @@ def make_ctx(
     run_dir: str | None = None,
     period: float = 0.1,
     sync_group: str | None = None,
+    **spec: Any,
 ) -> MeasureContext:
-    """A MeasureContext as the runtime would build it, for cluster "t"."""
+    """A MeasureContext as the runtime would build it, for cluster "t" (``spec``: more
+    MeasureSpec fields, e.g. iterations or restart)."""
     return MeasureContext(
         node=node,
         cluster="t",
-        spec=MeasureSpec(name=name, period=period, sync_group=sync_group),
+        spec=MeasureSpec(name=name, period=period, sync_group=sync_group, **spec),
         store=Store(),
         args=args if args is not None else ArgsStore(node),
         session=session,

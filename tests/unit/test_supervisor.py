@@ -7,11 +7,9 @@ import time
 
 import pytest
 from harness import wait_for
+from nodes_helpers import make_ctx
 
-from hera.args import ArgsStore
-from hera.keys import Keys
-from hera.measure import Measure, MeasureContext, MeasureSpec
-from hera.store import Store
+from hera.measure import Measure
 from hera.supervisor import Child, Supervisor
 from hera.worker import Worker
 
@@ -35,18 +33,8 @@ class Steps(Measure):
 
 
 def make_child(cid, args, published, restart="transient", period=0.005, iterations=None, halt=None):
-    spec = MeasureSpec(name=cid, period=period, iterations=iterations, restart=restart)
-
     def start(on_exit):
-        ctx = MeasureContext(
-            node="n",
-            cluster="c",
-            spec=spec,
-            store=Store(),
-            args=ArgsStore("n"),
-            session=None,
-            keys=Keys("c"),
-        )
+        ctx = make_ctx(cid, period=period, iterations=iterations, restart=restart)
         return Worker(
             Steps, args, ctx, lambda name, r, g: published.append((name, r)), on_exit, halt=halt
         )
@@ -156,19 +144,10 @@ def test_hung_worker_is_abandoned_and_never_publishes_again():
             return [1.0 if self.first else 2.0]
 
     pub = []
-    spec = MeasureSpec(name="h", period=0.01, hang_factor=5, hang_min=0.1)
     args = {"inits": []}
 
     def start(on_exit):
-        ctx = MeasureContext(
-            node="n",
-            cluster="c",
-            spec=spec,
-            store=Store(),
-            args=ArgsStore("n"),
-            session=None,
-            keys=Keys("c"),
-        )
+        ctx = make_ctx("h", period=0.01, hang_factor=5, hang_min=0.1)
         return Worker(
             Blocks, args, ctx, lambda n, r, g: pub.append(r.values[0]), on_exit, halt=halt
         )

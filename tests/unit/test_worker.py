@@ -5,24 +5,14 @@ from __future__ import annotations
 import threading
 import time
 
-from hera.args import ArgsStore
-from hera.keys import Keys
-from hera.measure import Measure, MeasureContext, MeasureSpec, Reading
-from hera.store import Store
+from nodes_helpers import make_ctx
+
+from hera.measure import Measure, Reading
 from hera.worker import Worker
 
 
 def run_worker(cls, period, iterations, args=None):
-    spec = MeasureSpec(name="w", period=period, iterations=iterations)
-    ctx = MeasureContext(
-        node="n",
-        cluster="c",
-        spec=spec,
-        store=Store(),
-        args=ArgsStore("n"),
-        session=None,
-        keys=Keys("c"),
-    )
+    ctx = make_ctx("w", period=period, iterations=iterations)
     published, done = [], threading.Event()
     w = Worker(
         cls, args or {}, ctx, lambda name, r, g: published.append(r), lambda w, e: done.set()
