@@ -49,10 +49,6 @@ class Keys:
     def data(self, name: str = "*", node: str = "*") -> str:
         return f"{self.prefix}/data/{name}/{node}"
 
-    @property
-    def data_all(self) -> str:
-        return f"{self.prefix}/data/*/*"
-
     def parse_data(self, key: str) -> tuple[str, str]:
         """Return ``(name, node)`` of a data key; ValueError if ``key`` is not one."""
         head = f"{self.prefix}/data/"

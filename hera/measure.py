@@ -15,7 +15,7 @@ redone while the system runs.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Mapping, MutableMapping, Sequence
+from collections.abc import Mapping, MutableMapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
@@ -179,5 +179,3 @@ class Measure:
     def close(self) -> None:
         """Release what ``init`` acquired; called when the worker ends or is replaced."""
 
-
-MeasureFactory = Callable[[], Measure]
