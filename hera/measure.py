@@ -178,4 +178,3 @@ class Measure:
 
     def close(self) -> None:
         """Release what ``init`` acquired; called when the worker ends or is replaced."""
-
