@@ -64,8 +64,8 @@ def _parser() -> argparse.ArgumentParser:
     rp.add_argument(
         "--start-like",
         metavar="NODE",
-        help="start each model where NODE's live "
-        "model gave its first estimate (to compare a replay with a live node)",
+        help="start each model at the first sample NODE's live model fused and write "
+        "estimates at the live estimates' instants (to compare a replay with a live node)",
     )
 
     ev = sub.add_parser("eval", help="score a run's estimates against the truth")
@@ -207,14 +207,14 @@ def _replay(args: argparse.Namespace) -> int:
     chosen = pick_models(models, wanted)
     if not chosen:
         raise ValueError("no models to replay: give --models or --spec (or a run dir)")
-    start = None
+    like = None
     if args.start_like:
-        from hera.replay import first_estimates
+        from hera.replay import live_schedule
 
-        start = first_estimates(args.recordings, args.start_like)
-        if not start:
+        like = live_schedule(args.recordings, args.start_like)
+        if not like:
             raise ValueError(f"no live estimates of node {args.start_like!r} in the recordings")
-    counts = replay(args.recordings, args.out, chosen, args.node, start)
+    counts = replay(args.recordings, args.out, chosen, args.node, like)
     for name, n in counts.items():
         print(f"{name:<20} {n:>7} estimates -> {Path(args.out) / 'measures'}")
     return 0

@@ -21,10 +21,12 @@ A :class:`FusionMeasure` runs a model inside a node, in one of two modes (arg ``
 from __future__ import annotations
 
 import heapq
+import json
 import threading
 import time
 from collections import deque
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any, ClassVar, Protocol
 
 from hera.measure import Measure, MeasureContext, Reading
@@ -117,6 +119,7 @@ class FusionMeasure(Measure):
         self.columns = tuple(self.model.columns)
         self._inbox = None
         self._cursor = None
+        self._first_t: float | None = None
         if self.mode == "arrival":
             self._inbox = Inbox(ctx.store, self.model.inputs, int(args.get("backlog", 64)))
         else:
@@ -147,10 +150,26 @@ class FusionMeasure(Measure):
             samples = time_order(self._cursor.new(max_age=self.max_age))
         changed = False
         for s in samples:
-            changed |= self.model.process(s)
+            if self.model.process(s):
+                changed = True
+                if self._first_t is None:
+                    self._first_t = s.t
+                    self._record_start(s.t)
         self._report(len(samples))
         est = self.model.estimate() if changed else None
         return None if est is None else Reading(est[1], est[0])
+
+    def _record_start(self, t: float) -> None:
+        """Write the first fused sample's time to ``<run>/measures/<name>_<node>.start.json``
+        so ``hera replay --start-like <node>`` can start the model exactly there."""
+        if self.ctx.run_dir is None:
+            return
+        path = Path(self.ctx.run_dir) / "measures" / f"{self.ctx.spec.name}_{self.ctx.node}"
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.with_suffix(".start.json").write_text(json.dumps({"first_sample_t": t}))
+        except OSError as e:  # a full disk must not stop the fusion
+            self.ctx.log.warning("cannot record the model's start: %s", e)
 
     def _report(self, fused: int) -> None:
         """Status counters: samples fused, dropped (backlog), and the model's own counters

@@ -8,6 +8,7 @@ layout: ``<out>/measures/<model>_<node>.csv``.
 
 from __future__ import annotations
 
+import json
 import shutil
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -34,15 +35,27 @@ def model_args_from_spec(spec: ClusterSpec) -> dict[str, tuple[str, dict[str, An
     return out
 
 
-def first_estimates(recordings: str | Path, node: str) -> dict[str, float]:
-    """Time (epoch s) of the first estimate of each model that ``node`` logged live."""
+CSV_RESOLUTION_S = 1e-6
+"""Recorded timestamps are milliseconds with three decimals."""
+
+
+def live_schedule(recordings: str | Path, node: str) -> dict[str, tuple[float, set[int]]]:
+    """For each model that ``node`` ran live: the time of its first fused sample (from the
+    ``.start.json`` the fusion measure wrote, else its first estimate) and the instants
+    (epoch microseconds) of its live estimates."""
     from hera.recordings import measures_dir, read_csv
 
     out = {}
     for path in measures_dir(recordings).glob(f"*_{node}.csv"):
-        rows = read_csv(path, path.stem[: -len(node) - 1], node)
-        if rows:
-            out[rows[0].name] = rows[0].t
+        name = path.stem[: -len(node) - 1]
+        rows = read_csv(path, name, node)
+        if not rows:
+            continue
+        start = rows[0].t
+        marker = path.with_name(f"{path.stem}.start.json")
+        if marker.exists():
+            start = float(json.loads(marker.read_text())["first_sample_t"])
+        out[name] = (start, {round(r.t * 1e6) for r in rows})
     return out
 
 
@@ -51,14 +64,14 @@ def replay(
     out: str | Path,
     models: Mapping[str, tuple[str, Mapping[str, Any]]],
     node: str = "replay",
-    start: Mapping[str, float] | None = None,
+    like: Mapping[str, tuple[float, set[int]]] | None = None,
 ) -> dict[str, int]:
     """Run each model (name -> (measure use, model params)) over ``recordings``; write its
     estimates to ``out``; return the number of estimates per model.
 
-    ``start`` (model name -> epoch s) starts a model at that time instead of at the first
-    sample, e.g. where a live model began (see :func:`first_estimates`): a model fed from
-    the same first sample follows the same path as the live one.
+    ``like`` (model name -> (start, instants), see :func:`live_schedule`) makes a replay of
+    a live node: each model starts at the live model's first sample and writes estimates
+    only at the live estimates' instants, so the two are compared on the same estimates.
     """
     instances = {}
     for name, (use, params) in models.items():
@@ -72,12 +85,14 @@ def replay(
     counts = {}
     for name, model in instances.items():
         writer = CsvWriter(out, name, node, model.columns)
-        t_start = (start or {}).get(name, float("-inf"))
+        t_start, instants = (like or {}).get(name, (float("-inf"), None))
+        t_start -= CSV_RESOLUTION_S  # the recordings' times are rounded to the microsecond
         try:
             for s in samples:
                 if s.t >= t_start and s.name in model.inputs and model.process(s):
                     t, values = model.estimate()
-                    writer.write(t, values)
+                    if instants is None or round(t * 1e6) in instants:
+                        writer.write(t, values)
         finally:
             writer.close()
         counts[name] = writer.seq

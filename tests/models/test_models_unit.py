@@ -47,7 +47,7 @@ def test_bilateration_keeps_the_upper_solution_of_fresh_readings():
 @pytest.mark.parametrize("rung", ["e6", "e8"])
 def test_process_jacobian_matches_a_numerical_one(rung):
     m = TrainTracker(rung=rung)
-    x = np.array([0.3, -0.4, 0.7, 0.84, 0.61][: m.n])
+    x = np.array([0.3, -0.4, 0.7, 0.84, 0.61, 0.01][: m.n])  # e8: + the gyro scale state
     num = numerical_jacobian(lambda s: m._f(s, 0.05), x)
     assert np.allclose(m._F(x, 0.05), num, atol=1e-6)
 
@@ -155,3 +155,82 @@ def test_fusion_measure_in_arrival_mode_fuses_a_late_sample_in_time_order():
     assert seen == [t0, t0 + 0.02]
     assert m.ctx.counters["fused"] == 2
     m.close()
+
+
+SONARS = ((-0.3, -1.5), (0.3, -1.5))
+
+
+def circle_samples(seconds, theta0=-1.0, omega=0.84, radius=0.6, gyro_scale=1.0, t0=100.0):
+    """Noise-free samples of a point target on a circle about (0, 0): nav at 100 Hz (the gyro
+    scaled by ``gyro_scale``), each sonar at 5 Hz (point ranges)."""
+    out = []
+    for k in range(int(seconds * 100)):
+        t = t0 + k * 0.01
+        out.append(sample("nav", "n", k, t, radius * omega**2, gyro_scale * omega))
+        if k % 10 == 0:
+            th = theta0 + omega * (t - t0)
+            px, py = SONARS[(k // 10) % 2]
+            rng = math.hypot(radius * math.cos(th) - px, radius * math.sin(th) - py)
+            out.append(sample("sonar", f"s{(k // 10) % 2}", k, t, rng, px, py))
+    return out
+
+
+def test_estimate_keeps_the_rung_columns_with_the_hidden_gyro_scale_state():
+    for rung in ("e7", "e8", "e9"):
+        m = TrainTracker(rung=rung)
+        assert m.k_i is not None and m.n == len(m.columns) + 1
+        m.process(sample("nav", "n", 1, 1.0, 0.42, 0.84))
+        assert len(m.estimate()[1]) == len(m.columns)
+        off = TrainTracker(rung=rung, gyro_scale_var0=None)
+        assert off.k_i is None and off.n == len(off.columns)
+    assert TrainTracker(rung="e6").k_i is None  # no gyro, no scale to learn
+    with pytest.raises(ValueError):
+        TrainTracker(rung="e7", gyro_scale_var0=0.0)
+
+
+def test_gyro_scale_state_removes_the_gyros_scale_error_from_omega():
+    samples = circle_samples(30.0, gyro_scale=1.02)  # a gyro reading 2 % high
+    with_k, without = TrainTracker(rung="e7"), TrainTracker(rung="e7", gyro_scale_var0=None)
+    for s in samples:
+        with_k.process(s)
+        without.process(s)
+    assert with_k.locked and with_k.unlocks == 0
+    w = with_k.estimate()[1][3]
+    assert abs(w / 0.84 - 1) < 0.003  # the sonars' theta progression tells w from the scale
+    assert with_k.ekf.x[with_k.k_i] == pytest.approx(0.02, abs=0.003)
+    assert without.estimate()[1][3] / 0.84 - 1 > 0.005  # without it, most of the bias stays
+
+
+def test_sonar_variance_switches_to_tracking_only_on_consistent_innovations():
+    m = TrainTracker(rung="e7", var_sonar=0.02, var_sonar_track=1e-3, lock_count=5)
+    assert not m.locked and m.sonar_var() == 0.02
+    for s in circle_samples(1.0):
+        m.process(s)
+    assert m.locked and m.sonar_var() == 1e-3
+    # a filter confidently on a wrong branch: small P, innovations of tens of cm: no lock
+    wrong = TrainTracker(rung="e7", var_sonar=0.02, var_sonar_track=1e-3, lock_count=5)
+    x = np.array([0.6 * math.cos(0.2), 0.6 * math.sin(0.2), 0.2, 0.84, 0.0])
+    wrong.ekf.reset(x, np.diag([1e-4, 1e-4, 1e-3, 1e-4, 1e-4]))
+    wrong.t = 100.0
+    for s in circle_samples(1.0):
+        wrong.process(s)
+    assert not wrong.locked and wrong.sonar_var() == 0.02
+    # var_sonar_track=None: the original single variance, never locked
+    same = TrainTracker(rung="e7", var_sonar_track=None)
+    for s in circle_samples(1.0):
+        same.process(s)
+    assert not same.locked and same.sonar_var() == same.var["sonar"]
+
+
+def test_a_locked_filter_unlocks_after_successive_gated_out_sonar_readings():
+    m = TrainTracker(rung="e7", unlock_count=3)
+    samples = circle_samples(2.0)
+    for s in samples:
+        m.process(s)
+    assert m.locked
+    p_theta, t = m.ekf.P[2, 2], samples[-1].t
+    for i in range(3):  # 1 m too far: gated out every time
+        px, py = SONARS[i % 2]
+        m.process(sample("sonar", "s0", 900 + i, t + 0.01 * (i + 1), 3.0, px, py))
+    assert not m.locked and m.unlocks == 1 and m.rejected >= 3
+    assert m.ekf.P[2, 2] > p_theta + 0.1  # theta may be pulled back by the sonars

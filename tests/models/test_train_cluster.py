@@ -1,11 +1,11 @@
 """Train tracking end to end (thesis ch. 6) on a real 4-node cluster, its replay and scoring.
 
-One 30 s run of deploy/train.toml is shared by the tests of this module. Asserted: every
-model estimates on both nodes that run it; e9 position RMSE at most 5 cm once converged
-(after 10 s); e7 angular-speed RMS error within 1 % after 3 s; the rungs gyro -> radius ->
-magnetometer no worse than the one before on angular speed. (Issue 6 also asks for the e7
-*maximum* error within 1 % and the e8 radius within 1.5 cm: measured but not yet met on
-every run, see the README's train section, so not asserted here.)
+One 30 s run of deploy/train.toml is shared by the tests of this module. Asserted: e7
+angular speed within 1 % of the truth after 3 s as an RMS error; e8 radius within 1.5 cm
+after 10 s (RMS); e9 position RMSE at most 5 cm once converged (after 10 s); the rungs
+gyro -> radius -> magnetometer no worse than the one before on angular speed; a replay of
+the run's recordings scoring within 10 % of the live run. (Issue 6 reads "within 1 %" for
+every e7 estimate after 3 s: its maximum is 0.7-1.2 % on live runs, so not yet asserted.)
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ def replay(run: Path, out: Path, tmp: Path) -> None:
     assert proc.returncode == 0, proc.stderr[-3000:]
 
 
-def test_live_run_tracks_the_train_on_both_model_nodes(train_run):
+def test_live_run_meets_the_thresholds_on_both_model_nodes(train_run):
     res = evaluate(train_run)
     models = ("omega_acc", "track_bilat", "track_sonar", "track_gyro", "track_radius", "track_mag")
     for node in NODES:
@@ -70,11 +70,54 @@ def test_live_run_tracks_the_train_on_both_model_nodes(train_run):
             assert res[(m, node)]["estimates"] > 300, (m, node)  # ~20 Hz for 30 s
         e7, e8, e9 = (res[(m, node)] for m in ("track_gyro", "track_radius", "track_mag"))
         assert e7["omega_rms_pct"] <= 1.0, (node, e7)
+        assert e8["radius_rms_cm"] <= 1.5, (node, e8)
         assert e9["pos_rmse_cm"] <= 5.0, (node, e9)
         # each rung no worse than the one before, on the angular speed every rung estimates
         # (0.1 percentage point: below the truth's own resolution in the thesis)
         assert e8["omega_rms_pct"] <= e7["omega_rms_pct"] + 0.1, (node, e7, e8)
         assert e9["omega_rms_pct"] <= e8["omega_rms_pct"] + 0.1, (node, e8, e9)
+
+
+METRICS = {"omega_rms_pct": 0.02, "pos_rmse_cm": 0.1, "radius_rms_cm": 0.1}
+"""Compared metrics, each with an absolute floor below which a difference is noise."""
+
+
+def test_replay_scores_within_ten_percent_of_the_live_run(train_run, tmp_path):
+    live = evaluate(train_run)
+    for node in NODES:
+        out = tmp_path / node
+        proc = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "hera",
+                "replay",
+                str(train_run),
+                "--out",
+                str(out),
+                "--start-like",
+                node,
+            ],
+            env=cluster_env(tmp_path),
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        again = evaluate(out)
+        for model in ("track_gyro", "track_radius", "track_mag"):
+            ref, got = live[(model, node)], again[(model, "replay")]
+            for metric, floor in METRICS.items():
+                if ref.get(metric) is None:
+                    continue
+                tolerance = max(0.1 * ref[metric], floor)
+                assert abs(got[metric] - ref[metric]) <= tolerance, (
+                    model,
+                    node,
+                    metric,
+                    ref[metric],
+                    got[metric],
+                )
 
 
 def test_replay_is_deterministic(train_run, tmp_path):

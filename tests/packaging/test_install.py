@@ -69,3 +69,12 @@ def test_wheel_installs_into_a_fresh_venv(tmp_path):
         timeout=120,
     )
     assert measures.returncode == 0 and "counter" in measures.stdout
+    # hera up starts nodes with `python -m hera`, which puts the current folder first on
+    # sys.path: from the repo root the source hera/ is found before the installed one and
+    # must still reach hera.models, hera.nodes and hera.sync
+    load = "from hera.plugins import find_measure as f; print(f('track_mag'), f('sonar'))"
+    from_root = subprocess.run(
+        [py, "-c", load], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+    assert from_root.returncode == 0, from_root.stderr[-2000:]
+    assert "TrackMag" in from_root.stdout and "Sonar" in from_root.stdout
