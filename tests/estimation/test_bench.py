@@ -2,13 +2,10 @@
 
 import sys
 
-import pytest
-
 from hera.bench import kalman as bench
 
 
 def test_bench_runs_tiny(capsys):
-    pytest.importorskip("filterpy")
     assert bench.main(["--steps", "3"]) == 0
     out = capsys.readouterr().out
     assert "filterpy us" in out and "ratio" in out

@@ -2,10 +2,9 @@
 
 import numpy as np
 import pytest
+from filterpy import kalman as filterpy
 
-filterpy = pytest.importorskip("filterpy.kalman")
-
-from hera.estimation import (  # noqa: E402
+from hera.estimation import (
     ExtendedKalmanFilter,
     KalmanFilter,
     Observations,

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from scipy import stats as scipy_stats
 
 from hera.estimation import (
     HealthMonitor,
@@ -12,8 +13,6 @@ from hera.estimation import (
     chi2_ppf,
     gate_threshold,
 )
-
-scipy_stats = pytest.importorskip("scipy.stats")
 
 
 @pytest.mark.parametrize("dof", list(range(1, 13)) + [20, 50, 100])

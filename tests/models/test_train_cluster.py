@@ -132,7 +132,6 @@ def test_replay_is_deterministic(train_run, tmp_path):
 
 
 def test_eval_cli_prints_every_model_and_draws_plots(train_run, tmp_path):
-    pytest.importorskip("matplotlib")
     proc = subprocess.run(
         [sys.executable, "-m", "hera", "eval", str(train_run), "--plots", str(tmp_path / "plots")],
         env=cluster_env(tmp_path),
