@@ -7,6 +7,8 @@ estimate:
 
 - ``omega_rms_pct`` / ``omega_max_pct``: relative angular-speed error after ``omega_after``
   s (default 3 s);
+- ``omega_settled_rms_pct``: the same RMS after ``settle`` s, once every rung has seen the
+  train in the sonars' beams (what the ladder of thesis fig. 6.5 compares);
 - ``pos_rmse_cm``: position RMSE after ``settle`` s (default 10 s, "once converged");
 - ``radius_rms_cm``: radius RMS error after ``settle`` s;
 - ``converge_s``: the time after which the angular-speed error stays within 2 %.
@@ -83,6 +85,8 @@ def score(series: Series, world: dict, omega_after: float = 3.0, settle: float =
         late = [e for (t, _), e in zip(series.rows, rel, strict=True) if t - t0 >= omega_after]
         out["omega_rms_pct"] = None if not late else 100 * _rms(late)
         out["omega_max_pct"] = None if not late else 100 * max(abs(e) for e in late)
+        settled = [e for (t, _), e in zip(series.rows, rel, strict=True) if t - t0 >= settle]
+        out["omega_settled_rms_pct"] = None if not settled else 100 * _rms(settled)
         conv = None
         for (t, _), e in zip(reversed(series.rows), reversed(rel), strict=True):
             if abs(e) > 0.02:
@@ -140,6 +144,7 @@ def format_table(results: dict) -> str:
     cols = [
         ("omega_rms_pct", "omega RMS %"),
         ("omega_max_pct", "omega max %"),
+        ("omega_settled_rms_pct", "settled RMS %"),
         ("converge_s", "converge s"),
         ("pos_rmse_cm", "pos RMSE cm"),
         ("radius_rms_cm", "radius RMS cm"),

@@ -5,6 +5,12 @@ reading at most ``max_age`` s old (measurement times; the original used 1 s), th
 circles are intersected; of the two solutions the one on the ``keep`` side of the line
 through the sonars is kept (the original rejected the lower one: ``keep = "upper"``).
 ``target_radius`` (m) is added to each range, since a sonar sees the target's surface.
+
+Improvement over the original: with ``beams`` ({sonar node: [x, y] pointing direction}) a
+solution outside either sonar's beam (a cone of ``half_angle_deg``) is rejected (counted in
+``outside``): a sonar cannot have seen a target there, so one of the two readings was of
+something else (the far side of the track, a reading from before the target entered the
+beam). Without beams every solution is kept, as in the original.
 """
 
 from __future__ import annotations
@@ -35,15 +41,42 @@ class Bilateration:
     inputs = ("sonar",)
     columns = ("x [m]", "y [m]")
 
-    def __init__(self, max_age: float = 1.0, keep: str = "upper", target_radius: float = 0.0):
+    def __init__(
+        self,
+        max_age: float = 1.0,
+        keep: str = "upper",
+        target_radius: float = 0.0,
+        beams: dict[str, list[float]] | None = None,
+        half_angle_deg: float = 20.0,
+    ):
         if keep not in ("upper", "lower"):
             raise ValueError(f"keep must be 'upper' or 'lower', got {keep!r}")
+        if not max_age > 0:
+            raise ValueError(f"max_age must be > 0 s, got {max_age!r}")
         self.max_age = float(max_age)
         self.keep = keep
         self.target_radius = float(target_radius)
+        self.beams: dict[str, tuple[float, float]] = {}
+        for node, d in (beams or {}).items():
+            norm = math.hypot(float(d[0]), float(d[1]))
+            if not norm > 0:
+                raise ValueError(f"beam direction of {node!r} must be a non-zero [x, y]")
+            self.beams[node] = (float(d[0]) / norm, float(d[1]) / norm)
+        self.beam_cos = math.cos(math.radians(half_angle_deg))
         self._latest: dict[str, Sample] = {}
         self._estimate: tuple[float, list[float]] | None = None
         self.misses = 0
+        self.outside = 0
+
+    def in_beam(self, sonar: Sample, x: float, y: float) -> bool:
+        """Whether (x, y) lies in the beam of the sonar that took ``sonar`` (True if its
+        direction is unknown)."""
+        d = self.beams.get(sonar.node)
+        if d is None:
+            return True
+        dx, dy = x - sonar.values[1], y - sonar.values[2]
+        norm = math.hypot(dx, dy)
+        return norm > 0 and (dx * d[0] + dy * d[1]) / norm >= self.beam_cos
 
     def process(self, sample: Sample) -> bool:
         """Remember the sonar's reading and solve with the freshest other sonar's."""
@@ -67,6 +100,9 @@ class Bilateration:
             return False
         pick = max if self.keep == "upper" else min
         x, y = pick(sol, key=lambda p: p[1])
+        if not (self.in_beam(sample, x, y) and self.in_beam(other, x, y)):
+            self.outside += 1
+            return False
         self._estimate = (sample.t, [x, y])
         return True
 

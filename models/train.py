@@ -400,21 +400,20 @@ class TrainTracker:
         return True
 
     def _keep_direction(self) -> None:
-        """The train runs one way (the sign of ``omega0``). e4: a_c = r w^2 cannot tell w
-        from -w, so the mirrored state fits the data equally well: take the right branch.
-        Other rungs: project the estimate onto w * sign >= 0 when it strays (estimate
-        projection, Simon & Chia 2002: x <- x - P e_w (x_w - 0) / P_ww, the P-weighted
-        nearest point of the constraint, which also moves the correlated theta and x, y)."""
+        """The train runs one way (the sign of ``omega0``): when the estimate of w strays to
+        the other sign, mirror it (w <- -w, P unchanged). The accelerometer's a_c = r w^2
+        cannot tell w from -w, so the mirrored state fits its data equally well: of the
+        posterior's two modes this keeps the right one. (Projecting onto w = 0 instead, the
+        nearest point of the constraint, is a trap: there d(a_c)/dw = 2 r w = 0 and the
+        accelerometer can never pull w back.)"""
         x = self.ekf.x
         w_i = 0 if self.n == 1 else 3
         if x[w_i] * self.omega_sign >= 0:
             return
         self.direction_fixes += 1
-        if self.n == 1:
-            self.ekf.reset(-x, self.ekf.P)
-            return
-        P = self.ekf.P
-        self.ekf.reset(x - P[:, w_i] * (x[w_i] / P[w_i, w_i]), P)
+        x = x.copy()
+        x[w_i] = -x[w_i]
+        self.ekf.reset(x, self.ekf.P)
 
     def estimate(self) -> tuple[float, list[float]] | None:
         """(time, state) of the latest estimate, theta wrapped to (-pi, pi]."""

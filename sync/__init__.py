@@ -7,11 +7,19 @@ measures of a group fire at once, even while the leader changes. Protocol and sa
 argument: ``sync/README.md``.
 
 Public API: :class:`SyncService` (one per node), :class:`SyncClient` and :class:`Grant`,
-:func:`run_in_slot` (one synchronised step) and :func:`slot_duration`.
+:func:`run_in_slot` (one synchronised step), :class:`SlotLost` and :func:`slot_duration`.
 """
 
-from hera.sync.client import Grant, SyncClient, run_in_slot, slot_duration
+from hera.sync.client import Grant, SlotLost, SyncClient, run_in_slot, slot_duration
 from hera.sync.election import Timing
 from hera.sync.service import SyncService
 
-__all__ = ["Grant", "SyncClient", "SyncService", "Timing", "run_in_slot", "slot_duration"]
+__all__ = [
+    "Grant",
+    "SlotLost",
+    "SyncClient",
+    "SyncService",
+    "Timing",
+    "run_in_slot",
+    "slot_duration",
+]

@@ -54,6 +54,12 @@ class Grant:
         return t + seconds <= self.deadline
 
 
+class SlotLost(Exception):
+    """Raised by a firing function that finds, at its trigger instant, that its step no
+    longer fits the lease (a thread switch or a pause between :func:`run_in_slot`'s check
+    and the trigger ate the slack): :func:`run_in_slot` then gives the slot back unused."""
+
+
 def slot_duration(slot_s: float) -> float:
     """The lease to ask for a step of ``slot_s`` s: the step plus a slack for latency.
 
@@ -194,17 +200,27 @@ def run_in_slot(
     from before the request was sent) runs out; otherwise the slot is given back unused
     and ``(False, None, grant)`` returned. ``(False, None, None)``: no slot within
     ``timeout``. The slot is released even if ``fn`` raises (the exception propagates).
+
+    The check happens just before ``fn`` is called, but in CPython another thread can hold
+    the GIL for a switch interval (5 ms) in between: a ``fn`` whose trigger must fall in
+    the lease re-checks ``grant.fits(slot_s)`` at its trigger and raises :class:`SlotLost`
+    if it does not; that counts as a late grant, as if the first check had failed.
     """
     grant = client.acquire(group, holder, slot_duration(slot_s), timeout)
     if grant is None:
         return False, None, None
-    if not grant.fits(slot_s):
-        client.release(grant, used=False)
-        if hasattr(client, "note_late"):
-            client.note_late(grant)
-        return False, None, grant
-    try:
-        result = fn(grant)
-    finally:
-        client.release(grant, used=True)
-    return True, result, grant
+    if grant.fits(slot_s):
+        try:
+            result = fn(grant)
+        except SlotLost:
+            pass
+        except BaseException:
+            client.release(grant, used=True)
+            raise
+        else:
+            client.release(grant, used=True)
+            return True, result, grant
+    client.release(grant, used=False)
+    if hasattr(client, "note_late"):
+        client.note_late(grant)
+    return False, None, grant

@@ -42,6 +42,22 @@ def test_bilateration_keeps_the_upper_solution_of_fresh_readings():
     assert t == 10.05 and x == pytest.approx(p[0]) and y == pytest.approx(p[1])
     # a reading older than max_age is not paired
     assert not Bilateration(max_age=0.01).process(sample("sonar", "s2", 1, 10.05, r2, 0.5, -1.0))
+    with pytest.raises(ValueError, match="max_age"):
+        Bilateration(max_age=0)
+
+
+def test_bilateration_rejects_a_solution_outside_either_beam():
+    beams = {"s1": [0.0, 1.0], "s2": [0.0, 1.0]}  # both pointing up, 20 degree half-angle
+    inside, outside = (0.1, 0.2), (1.2, 0.3)  # 7 and 27 degrees off the axis of s2
+    for p, kept in ((inside, True), (outside, False)):
+        m = Bilateration(beams=beams)
+        r1, r2 = math.dist(p, (-0.3, -1.5)), math.dist(p, (0.3, -1.5))
+        m.process(sample("sonar", "s1", 1, 10.0, r1, -0.3, -1.5))
+        assert m.process(sample("sonar", "s2", 1, 10.1, r2, 0.3, -1.5)) is kept
+        assert m.outside == (0 if kept else 1)
+        assert (m.estimate() is not None) is kept
+    with pytest.raises(ValueError, match="s1"):
+        Bilateration(beams={"s1": [0.0, 0.0]})
 
 
 @pytest.mark.parametrize("rung", ["e6", "e8"])
@@ -59,17 +75,18 @@ def test_e4_keeps_the_sign_of_omega0_since_r_w2_cannot_tell():
     assert m.estimate()[1][0] > 0 and m.direction_fixes == 1
 
 
-def test_direction_projection_moves_only_a_wrong_way_state():
-    m = TrainTracker(rung="e6")
+def test_a_wrong_way_omega_is_mirrored_not_stuck_at_zero():
+    m = TrainTracker(rung="e5")
     P = np.diag([1.0, 1.0, 1.0, 0.25]) + 0.1
     m.ekf.reset(np.array([0.0, 0.6, 1.5, -0.3]), P)
     m._keep_direction()
-    x = m.ekf.x
-    assert x[3] == pytest.approx(0.0)  # projected onto the constraint w >= 0
-    assert x[0] == pytest.approx(0.0 - P[0, 3] * (-0.3) / P[3, 3])  # correlated states move
-    m.ekf.reset(np.array([0.0, 0.6, 1.5, 0.3]), P)
-    m._keep_direction()
+    assert list(m.ekf.x) == [0.0, 0.6, 1.5, 0.3] and m.direction_fixes == 1
+    m._keep_direction()  # a right-way state is left alone
     assert m.ekf.x[3] == 0.3 and m.direction_fixes == 1
+    # with only the accelerometer, w keeps converging: at w = 0, d(r w^2)/dw = 0 would not
+    for k in range(200):
+        m.process(sample("nav", "n", k, 1.0 + 0.01 * k, 0.6 * 0.84**2, 0.84))
+    assert m.estimate()[1][3] == pytest.approx(0.84, rel=0.02)
 
 
 def test_sonar_readings_near_the_beam_edge_are_skipped():

@@ -2,10 +2,9 @@
 
 One 30 s run of deploy/train.toml is shared by the tests of this module. Asserted: e7
 angular speed within 1 % of the truth after 3 s as an RMS error; e8 radius within 1.5 cm
-after 10 s (RMS); e9 position RMSE at most 5 cm once converged (after 10 s); the rungs
-gyro -> radius -> magnetometer no worse than the one before on angular speed; a replay of
-the run's recordings scoring within 10 % of the live run. (Issue 6 reads "within 1 %" for
-every e7 estimate after 3 s: its maximum is 0.7-1.2 % on live runs, so not yet asserted.)
+after 10 s (RMS); e9 position RMSE at most 5 cm once converged (after 10 s); every rung of
+the ladder e4 .. e9 no worse than the one before on angular speed once converged; a replay
+of the run's recordings scoring within 10 % of the live run.
 """
 
 from __future__ import annotations
@@ -13,6 +12,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from itertools import pairwise
 from pathlib import Path
 
 import pytest
@@ -62,20 +62,32 @@ def replay(run: Path, out: Path, tmp: Path) -> None:
     assert proc.returncode == 0, proc.stderr[-3000:]
 
 
+LADDER = ("omega_acc", "track_bilat", "track_sonar", "track_gyro", "track_radius", "track_mag")
+
+
 def test_live_run_meets_the_thresholds_on_both_model_nodes(train_run):
     res = evaluate(train_run)
-    models = ("omega_acc", "track_bilat", "track_sonar", "track_gyro", "track_radius", "track_mag")
     for node in NODES:
-        for m in models:
+        for m in LADDER:
             assert res[(m, node)]["estimates"] > 300, (m, node)  # ~20 Hz for 30 s
         e7, e8, e9 = (res[(m, node)] for m in ("track_gyro", "track_radius", "track_mag"))
         assert e7["omega_rms_pct"] <= 1.0, (node, e7)
         assert e8["radius_rms_cm"] <= 1.5, (node, e8)
         assert e9["pos_rmse_cm"] <= 5.0, (node, e9)
-        # each rung no worse than the one before, on the angular speed every rung estimates
-        # (0.1 percentage point: below the truth's own resolution in the thesis)
-        assert e8["omega_rms_pct"] <= e7["omega_rms_pct"] + 0.1, (node, e7, e8)
-        assert e9["omega_rms_pct"] <= e8["omega_rms_pct"] + 0.1, (node, e8, e9)
+
+
+def test_each_rung_is_no_worse_than_the_one_before(train_run):
+    """On the angular speed every rung estimates, once converged (after 10 s: e5 and e6
+    know theta only once the train has crossed the sonars' beams), with 0.1 percentage
+    point of slack (below the truth's own resolution in the thesis); on position, the
+    sonar ranges (e6) no worse than bilateration (e5)."""
+    res = evaluate(train_run)
+    for node in NODES:
+        w = [res[(m, node)]["omega_settled_rms_pct"] for m in LADDER]
+        for (a, wa), (b, wb) in pairwise(zip(LADDER, w, strict=True)):
+            assert wb <= wa + 0.1, (node, a, wa, b, wb)
+        e5, e6 = res[("track_bilat", node)], res[("track_sonar", node)]
+        assert e6["pos_rmse_cm"] <= e5["pos_rmse_cm"], (node, e5, e6)
 
 
 METRICS = {"omega_rms_pct": 0.02, "pos_rmse_cm": 0.1, "radius_rms_cm": 0.1}
@@ -128,7 +140,7 @@ def test_replay_is_deterministic(train_run, tmp_path):
     for name in files:
         a = (tmp_path / "a" / "measures" / name).read_bytes()
         assert a == (tmp_path / "b" / "measures" / name).read_bytes(), name
-        assert a.count(b"\n") > 100, name
+        assert a.count(b"\n") > 20, name  # bilateration: only when both beams see the train
 
 
 def test_eval_cli_prints_every_model_and_draws_plots(train_run, tmp_path):

@@ -6,7 +6,7 @@ import time
 
 import msgpack
 import pytest
-from hera.sync.client import Grant, run_in_slot, slot_duration
+from hera.sync.client import Grant, SlotLost, run_in_slot, slot_duration
 from hera.sync.protocol import (
     AcquireRequest,
     GrantReply,
@@ -183,6 +183,19 @@ def test_run_in_slot_gives_a_late_grant_back_unused():
     called = []
     fired, result, grant = run_in_slot(c, "g", "n/m", 0.01, lambda g: called.append(1), 1.0)
     assert not fired and called == [] and c.released == [(7, False)]
+
+
+def test_a_step_that_finds_its_slot_gone_at_the_trigger_gives_it_back_unused():
+    c = FakeClient(grant_after=0.0)
+    late = []
+    c.note_late = late.append
+
+    def trigger(g):
+        raise SlotLost  # e.g. a GIL switch between run_in_slot's check and the trigger
+
+    fired, result, grant = run_in_slot(c, "g", "n/m", 0.01, trigger, timeout=1.0)
+    assert (fired, result) == (False, None) and grant.token == 7
+    assert c.released == [(7, False)] and late == [grant]
 
 
 def test_run_in_slot_without_a_grant_and_with_a_failing_step():
