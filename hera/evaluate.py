@@ -82,10 +82,11 @@ def score(series: Series, world: dict, omega_after: float = 3.0, settle: float =
             (v[i] - tr["omega [rad/s]"]) / tr["omega [rad/s]"]
             for (t, v), tr in zip(series.rows, truth, strict=True)
         ]
-        late = [e for (t, _), e in zip(series.rows, rel, strict=True) if t - t0 >= omega_after]
+        since = [t - t0 for t, _ in series.rows]
+        late = [e for s, e in zip(since, rel, strict=True) if s >= omega_after]
+        settled = [e for s, e in zip(since, rel, strict=True) if s >= settle]
         out["omega_rms_pct"] = None if not late else 100 * _rms(late)
         out["omega_max_pct"] = None if not late else 100 * max(abs(e) for e in late)
-        settled = [e for (t, _), e in zip(series.rows, rel, strict=True) if t - t0 >= settle]
         out["omega_settled_rms_pct"] = None if not settled else 100 * _rms(settled)
         conv = None
         for (t, _), e in zip(reversed(series.rows), reversed(rel), strict=True):

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any, ClassVar, Protocol
 
 from hera.measure import Measure, MeasureContext, Reading
+from hera.recordings import start_marker
 from hera.store import Sample, Store
 
 
@@ -164,10 +165,10 @@ class FusionMeasure(Measure):
         so ``hera replay --start-like <node>`` can start the model exactly there."""
         if self.ctx.run_dir is None:
             return
-        path = Path(self.ctx.run_dir) / "measures" / f"{self.ctx.spec.name}_{self.ctx.node}"
+        path = start_marker(Path(self.ctx.run_dir) / "measures", self.ctx.spec.name, self.ctx.node)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            path.with_suffix(".start.json").write_text(json.dumps({"first_sample_t": t}))
+            path.write_text(json.dumps({"first_sample_t": t}))
         except OSError as e:  # a full disk must not stop the fusion
             self.ctx.log.warning("cannot record the model's start: %s", e)
 

@@ -206,15 +206,14 @@ class Node:
             raise RuntimeError(
                 f"measure {spec.name!r} is marked sync but the sync service is not available"
             )
-        from hera.sync import SlotLost, run_in_slot
+        from hera.sync import run_in_slot
 
         client = self.sync.client()
         holder = f"{self.name}/{spec.name}"
 
         def in_slot(fn):
             def fire(grant):
-                if not grant.fits(spec.slot):  # the trigger-time check (see run_in_slot)
-                    raise SlotLost
+                grant.require(spec.slot)  # the trigger-time check (see run_in_slot)
                 ctx.grant = grant  # the measure sees (and announces) the grant it runs under
                 try:
                     return fn()

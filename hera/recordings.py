@@ -29,6 +29,12 @@ def measures_dir(folder: str | Path) -> Path:
     return sub if sub.is_dir() else folder
 
 
+def start_marker(folder: str | Path, name: str, node: str) -> Path:
+    """``folder/<name>_<node>.start.json``: where a live fusion model records the time of
+    the first sample it fused (read by ``hera replay --start-like``)."""
+    return Path(folder) / f"{name}_{node}.start.json"
+
+
 def split_stem(stem: str, names: Iterable[str] = ()) -> tuple[str, str]:
     """``(name, node)`` of a file stem ``<name>_<node>`` (see module docstring)."""
     for name in sorted(names, key=len, reverse=True):

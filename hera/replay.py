@@ -43,16 +43,17 @@ def live_schedule(recordings: str | Path, node: str) -> dict[str, tuple[float, s
     """For each model that ``node`` ran live: the time of its first fused sample (from the
     ``.start.json`` the fusion measure wrote, else its first estimate) and the instants
     (epoch microseconds) of its live estimates."""
-    from hera.recordings import measures_dir, read_csv
+    from hera.recordings import measures_dir, read_csv, start_marker
 
     out = {}
-    for path in measures_dir(recordings).glob(f"*_{node}.csv"):
+    folder = measures_dir(recordings)
+    for path in folder.glob(f"*_{node}.csv"):
         name = path.stem[: -len(node) - 1]
         rows = read_csv(path, name, node)
         if not rows:
             continue
         start = rows[0].t
-        marker = path.with_name(f"{path.stem}.start.json")
+        marker = start_marker(folder, name, node)
         if marker.exists():
             start = float(json.loads(marker.read_text())["first_sample_t"])
         out[name] = (start, {round(r.t * 1e6) for r in rows})

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import math
 
+from hera.models.beams import in_cone, unit_directions
+
 from hera.store import Sample
 
 
@@ -56,12 +58,7 @@ class Bilateration:
         self.max_age = float(max_age)
         self.keep = keep
         self.target_radius = float(target_radius)
-        self.beams: dict[str, tuple[float, float]] = {}
-        for node, d in (beams or {}).items():
-            norm = math.hypot(float(d[0]), float(d[1]))
-            if not norm > 0:
-                raise ValueError(f"beam direction of {node!r} must be a non-zero [x, y]")
-            self.beams[node] = (float(d[0]) / norm, float(d[1]) / norm)
+        self.beams = unit_directions(beams)
         self.beam_cos = math.cos(math.radians(half_angle_deg))
         self._latest: dict[str, Sample] = {}
         self._estimate: tuple[float, list[float]] | None = None
@@ -74,9 +71,7 @@ class Bilateration:
         d = self.beams.get(sonar.node)
         if d is None:
             return True
-        dx, dy = x - sonar.values[1], y - sonar.values[2]
-        norm = math.hypot(dx, dy)
-        return norm > 0 and (dx * d[0] + dy * d[1]) / norm >= self.beam_cos
+        return in_cone(d, x - sonar.values[1], y - sonar.values[2], self.beam_cos)
 
     def process(self, sample: Sample) -> bool:
         """Remember the sonar's reading and solve with the freshest other sonar's."""

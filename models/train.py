@@ -34,6 +34,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from hera.models.beams import in_cone, unit_directions
 
 from hera.estimation import (
     ExtendedKalmanFilter,
@@ -160,12 +161,7 @@ class TrainTracker:
         self.q_theta_track = q_theta if q_theta_track is None else float(q_theta_track)
         self.gate = gate
         self.max_lag = max_lag
-        self.beams = {}
-        for node, d in (beams or {}).items():
-            norm = math.hypot(float(d[0]), float(d[1]))
-            if not norm > 0:
-                raise ValueError(f"beam direction of {node!r} must be a non-zero [x, y]")
-            self.beams[node] = (float(d[0]) / norm, float(d[1]) / norm)
+        self.beams = unit_directions(beams)
         self.beam_cos = math.cos(math.radians(half_angle_deg - beam_margin_deg))
         self.beam_edge = 0
         self.t: float | None = None
@@ -286,9 +282,7 @@ class TrainTracker:
         d = self.beams.get(node)
         if d is None:
             return True
-        dx, dy = self._nearest(x, px, py)
-        norm = math.hypot(dx, dy)
-        return norm > 0 and (dx * d[0] + dy * d[1]) / norm >= self.beam_cos
+        return in_cone(d, *self._nearest(x, px, py), self.beam_cos)
 
     def sonar_var(self) -> float:
         """Variance of a sonar row now: ``var_sonar`` while theta is still being acquired

@@ -53,6 +53,12 @@ class Grant:
         t = time.monotonic() if now is None else now
         return t + seconds <= self.deadline
 
+    def require(self, seconds: float, now: float | None = None) -> None:
+        """The trigger-time check (see :func:`run_in_slot`): raise :class:`SlotLost` unless
+        something lasting ``seconds`` started ``now`` ends within the lease."""
+        if not self.fits(seconds, now):
+            raise SlotLost
+
 
 class SlotLost(Exception):
     """Raised by a firing function that finds, at its trigger instant, that its step no
@@ -203,8 +209,8 @@ def run_in_slot(
 
     The check happens just before ``fn`` is called, but in CPython another thread can hold
     the GIL for a switch interval (5 ms) in between: a ``fn`` whose trigger must fall in
-    the lease re-checks ``grant.fits(slot_s)`` at its trigger and raises :class:`SlotLost`
-    if it does not; that counts as a late grant, as if the first check had failed.
+    the lease calls ``grant.require(slot_s)`` at its trigger, which raises :class:`SlotLost`
+    if it no longer fits; that counts as a late grant, as if the first check had failed.
     """
     grant = client.acquire(group, holder, slot_duration(slot_s), timeout)
     if grant is None:

@@ -103,11 +103,8 @@ class _Worker:
         self.node.client.note_late(grant)
 
     def _fire(self, g: Any) -> Any:
-        from hera.sync.client import SlotLost
-
         start = time.monotonic()
-        if not g.fits(self.slot, start):  # the trigger-time check (see run_in_slot)
-            raise SlotLost
+        g.require(self.slot, start)  # the trigger-time check (see run_in_slot)
         end = start + self.slot
         self.node.log.line("F", start, end, g.deadline, self.holder, g.epoch, g.token)
         result = self.fire()
