@@ -3,14 +3,17 @@
 For KF, EKF and UKF with state size n in {2, 4, 9} and measurement size m in {1, 2, 3}, the
 same model and the same measurements are run through both libraries; the time of every
 step is measured with ``time.perf_counter_ns`` and the median is reported (microseconds).
-Our timed step includes building the observation block, as a fusion model does. The
-estimation backend (numba or numpy) is printed; its one-off compile / cache-load time is
-measured first and reported separately (warm-up steps then run before any timing).
+The two libraries take turns in runs of ``CHUNK`` steps, so a change of load on the
+machine during a case hits both alike, and the garbage collector is paused while timing,
+as ``timeit`` does. Our timed step includes building the observation block, as a fusion model
+does. The estimation backend (numba or numpy) is printed; its one-off compile / cache-load
+time is measured first and reported separately (warm-up steps then run before any timing).
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import statistics
 import sys
 import time
@@ -19,6 +22,7 @@ from collections.abc import Callable
 import numpy as np
 
 TARGET = 3.0
+CHUNK = 100  # steps per turn when the two libraries alternate
 INSTALL_HINT = "pip install 'hera-fusion[bench]'"
 
 
@@ -71,16 +75,37 @@ class _Model:
         return rng.normal(scale=0.3, size=(steps, self.m))
 
 
-def _median_us(step: Callable[[np.ndarray], None], zs: np.ndarray, warmup: int) -> float:
+def _alternating_medians(
+    a: Callable[[np.ndarray], None],
+    b: Callable[[np.ndarray], None],
+    zs: np.ndarray,
+    warmup: int,
+    chunk: int = CHUNK,
+) -> tuple[float, float]:
+    """Median step times (microseconds) of ``a`` and ``b`` fed the same measurements, timed
+    in alternating runs of ``chunk`` steps (each library runs hot, as in a loop of its own,
+    while a change of load on the machine during the case hits both alike), with the
+    garbage collector paused."""
     for z in zs[:warmup]:
-        step(z)
+        a(z)
+        b(z)
     clock = time.perf_counter_ns
-    times = []
-    for z in zs[warmup:]:
-        t0 = clock()
-        step(z)
-        times.append(clock() - t0)
-    return statistics.median(times) / 1000.0
+    ta: list[int] = []
+    tb: list[int] = []
+    timed = zs[warmup:]
+    gc_was_on = gc.isenabled()
+    gc.disable()
+    try:
+        for lo in range(0, len(timed), chunk):
+            for step, times in ((a, ta), (b, tb)):
+                for z in timed[lo : lo + chunk]:
+                    t0 = clock()
+                    step(z)
+                    times.append(clock() - t0)
+    finally:
+        if gc_was_on:
+            gc.enable()
+    return statistics.median(ta) / 1000.0, statistics.median(tb) / 1000.0
 
 
 def _ours(kind: str, md: _Model) -> Callable[[np.ndarray], None]:
@@ -174,8 +199,9 @@ def run(steps: int, kinds: list[str], sizes: list[int], dims: list[int]) -> list
             for m in dims:
                 md = _Model(n, m)
                 zs = md.measurements(steps + warmup)
-                ours = _median_us(_ours(kind, md), zs, warmup)
-                theirs = _median_us(_filterpy(kind, md), zs, warmup)
+                ours, theirs = _alternating_medians(
+                    _ours(kind, md), _filterpy(kind, md), zs, warmup
+                )
                 rows.append(
                     {"filter": kind, "n": n, "m": m, "ours_us": ours, "filterpy_us": theirs}
                 )

@@ -26,7 +26,7 @@ from .backend import active_kernels
 from .gating import gate_threshold
 from .numerics import CovarianceError, NonFiniteInputError, numerical_jacobian
 from .observations import Block, Observations
-from .results import BlockOutcome, UpdateResult, make_outcome, make_result1
+from .results import BlockOutcome, UpdateResult, make_outcome, make_result, make_result1
 from .small import inv_small, quad_form_small
 from .stacking import EMPTY1, EMPTY2, SCRATCH, block_layout, grow_scratch, stack_noise
 
@@ -196,86 +196,20 @@ def linearised_update(
     modified. ``method``: "joint", "sequential" (R diagonal) or "auto" (joint up to 3 rows,
     sequential above when R is diagonal). Runs the compiled kernel when the numba backend
     is active (same results to roundoff, same errors), else ``linearised_update_numpy``."""
-    k = active_kernels()
-    if k is not None:
-        out = _compiled_update(k, x, P, blocks, gate, joseph, method)
-        if out is not None:
-            return out
-    return linearised_update_numpy(x, P, blocks, gate, joseph, method)
+    filt = object.__new__(LinearisedFilter)  # no copies: x and P are only read
+    filt.x, filt.P, filt.n, filt.joseph, filt.gate = x, P, x.shape[0], joseph, None
+    result = filt.update(blocks, gate, method=method)
+    return filt.x, filt.P, result
 
 
-def _compiled_update(
-    k: Any,
-    x: np.ndarray,
-    P: np.ndarray,
-    blocks: Sequence[Block],
-    gate: float | None,
-    joseph: bool,
-    method: str,
-) -> tuple[np.ndarray, np.ndarray, UpdateResult] | None:
-    """The update on the compiled kernels ``lin_update1`` / ``lin_update``; None when the
-    numpy path must decide (non-finite input, S or P not positive definite, unusual shapes
-    or dtypes), which then raises the labelled error. User functions (h, Jacobian,
-    residual) run once here (again on the numpy path only in those failure cases)."""
-    if len(blocks) == 1 and method != "sequential":
-        return _compiled_single(k, x, P, blocks[0], gate, joseph, method)
-    return _compiled_stacked(k, x, P, blocks, gate, joseph, method)
-
-
-def _compiled_single(
-    k: Any, x: np.ndarray, P: np.ndarray, b: Block, gate: float | None, joseph: bool, method: str
-) -> tuple[np.ndarray, np.ndarray, UpdateResult] | None:
-    """Joint update of one block on the allocation-free kernel ``lin_update1`` (the hot
-    path of a fusion model: one sensor sample per step). The kernel checks every shape and
-    numba's dispatch every dtype and rank, so this only converts what is not an array."""
-    m = b.dim
-    var = b.var
-    if m > 3 and method == "auto" and var is not None:
-        return _compiled_stacked(k, x, P, (b,), gate, joseph, method)  # sequential
-    flags = _JOSEPH if joseph else 0
-    H = b.H
+def _kernel_inputs(b: Block, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """(H, z, hx, innovation mode) of one block for ``lin_update1``, for the blocks the
+    hot path of ``LinearisedFilter.update`` does not write out: no Jacobian (a numerical
+    one) or a residual function (the innovation is then computed here)."""
+    H, hx = _linearise(b, x)
     if b.residual is None:
-        if H is not None:
-            z, hx = b.z, EMPTY1  # mode 0: the kernel computes y = z - H x
-        else:
-            flags |= _MODE_HX
-            z = b.z
-            if b.jacobian is None:
-                H, hx = _linearise(b, x)
-            else:  # as _linearise, the shape checks left to the kernel
-                hx = b.h(x)  # type: ignore[misc]
-                if type(hx) is not _ND:
-                    hx = np.asarray(hx, dtype=np.float64).reshape(-1)
-                H = b.jacobian(x)
-                if type(H) is not _ND:
-                    H = np.asarray(H, dtype=np.float64).reshape(m, -1)
-    else:
-        H, hx = _linearise(b, x)
-        z = _innovation(b, hx)
-        flags |= _MODE_GIVEN
-    if var is not None:
-        flags |= _DIAG
-        R = EMPTY2
-    else:
-        var, R = EMPTY1, b.R
-    thr = _INF if gate is None else gate_threshold(gate, m)
-    n = x.shape[0]
-    x_out = _empty(n)
-    P_out = _empty((n, n))
-    try:
-        nis = k.lin_update1(x, P, H, z, hx, var, R, thr, flags, SCRATCH[0], x_out, P_out)
-        if nis == _WS_SMALL:
-            ws = grow_scratch(4 * m + 4 * n * m + 2 * m * m + n * n)
-            nis = k.lin_update1(x, P, H, z, hx, var, R, thr, flags, ws, x_out, P_out)
-    except TypeError:  # e.g. an integer Jacobian or h(x): the numpy path converts it
-        return None
-    if nis < 0.0:
-        return None
-    if gate is None:
-        return x_out, P_out, make_result1(b.label, m, nis, True, None)
-    if nis <= thr:
-        return x_out, P_out, make_result1(b.label, m, nis, True, thr)
-    return x, P, make_result1(b.label, m, nis, False, thr)
+        return H, b.z, hx, _MODE_HX
+    return H, _innovation(b, hx), hx, _MODE_GIVEN
 
 
 def _compiled_stacked(
@@ -555,18 +489,70 @@ class LinearisedFilter:
         exception the state is unchanged.
         """
         blocks = obs.blocks if type(obs) is Observations else as_blocks(obs)
-        if not blocks:
-            return UpdateResult([])
-        g = self.gate if gate is ... else gate
+        if gate is ...:
+            gate = self.gate
         k = active_kernels()
         out = None
-        if k is not None:
-            if len(blocks) == 1 and method != "sequential":
-                out = _compiled_single(k, self.x, self.P, blocks[0], g, self.joseph, method)
+        if k is not None and len(blocks) == 1 and method != "sequential":
+            # One block on the allocation-free kernel lin_update1: the hot path of a fusion
+            # model (one sensor sample per step), written out here because at n <= 9 each
+            # Python call layer costs as much as the arithmetic. The kernel checks every
+            # shape and numba's dispatch every dtype and rank, so only what is not an array
+            # is converted; a failed kernel falls through to the numpy path, which diagnoses.
+            b = blocks[0]
+            m = b.dim
+            var = b.var
+            if m > 3 and var is not None and method == "auto":  # sequential scalar updates
+                out = _compiled_stacked(k, self.x, self.P, blocks, gate, self.joseph, method)
             else:
-                out = _compiled_stacked(k, self.x, self.P, blocks, g, self.joseph, method)
+                x = self.x
+                h = b.h
+                jac = b.jacobian
+                if b.residual is not None or (h is not None and jac is None):
+                    H, z, hx, flags = _kernel_inputs(b, x)
+                elif h is None:  # linear: the kernel computes y = z - H x
+                    H, z, hx, flags = b.H, b.z, EMPTY1, 0
+                else:  # as _linearise, the shape checks left to the kernel
+                    hx = h(x)
+                    if type(hx) is not _ND:
+                        hx = np.asarray(hx, dtype=np.float64).reshape(-1)
+                    H = jac(x)
+                    if type(H) is not _ND:
+                        H = np.asarray(H, dtype=np.float64).reshape(m, -1)
+                    z, flags = b.z, _MODE_HX
+                if var is not None:
+                    flags |= _DIAG
+                    R = EMPTY2
+                else:
+                    var, R = EMPTY1, b.R
+                if self.joseph:
+                    flags |= _JOSEPH
+                thr = _INF if gate is None else gate_threshold(gate, m)
+                n = x.shape[0]
+                x_out = _empty(n)
+                P_out = _empty((n, n))
+                P = self.P
+                try:
+                    nis = k.lin_update1(
+                        x, P, H, z, hx, var, R, thr, flags, SCRATCH[0], x_out, P_out
+                    )
+                    if nis == _WS_SMALL:
+                        ws = grow_scratch(4 * m + 4 * n * m + 2 * m * m + n * n)
+                        nis = k.lin_update1(x, P, H, z, hx, var, R, thr, flags, ws, x_out, P_out)
+                except TypeError:  # e.g. an integer Jacobian or h(x): numpy converts it
+                    nis = -1.0
+                if nis <= thr and nis >= 0.0:
+                    self.x = x_out
+                    self.P = P_out
+                    return make_result1(b.label, m, nis, True, None if gate is None else thr)
+                if nis >= 0.0:  # gated out: the state stays as it is
+                    return make_result1(b.label, m, nis, False, thr)
+        elif not blocks:
+            return make_result([])
+        elif k is not None:
+            out = _compiled_stacked(k, self.x, self.P, blocks, gate, self.joseph, method)
         if out is None:
-            out = linearised_update_numpy(self.x, self.P, blocks, g, self.joseph, method)
+            out = linearised_update_numpy(self.x, self.P, blocks, gate, self.joseph, method)
         self.x, self.P, res = out
         return res
 

@@ -52,8 +52,9 @@ class ExtendedKalmanFilter(LinearisedFilter):
     def predict(self, dt: float, u: Any = None, *, Q: np.ndarray | None = None) -> None:
         """Propagate by dt seconds (seed 003 eq. 7). The state is unchanged on error."""
         x = self.x
-        if self.F is not None:
-            Fj = self.F(x, dt, u)
+        jac = self.F
+        if jac is not None:
+            Fj = jac(x, dt, u)
             if type(Fj) is not _ND:
                 Fj = np.asarray(Fj, dtype=np.float64)
         else:

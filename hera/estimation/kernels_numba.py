@@ -244,11 +244,72 @@ def lin_update(x, P, H, z, hx, var, R, ends, thr, flags, x_out, P_out, nis_out):
     return _lin_update(x, P, H, z, hx, var, R, ends, thr, flags, x_out, P_out, nis_out)
 
 
+@_jit
+def _update_row(x, P, H, z, hx, r, thr, flags, ws, x_out, P_out):
+    """``lin_update1`` for a block of one row (m = 1), shapes already checked: S is the
+    scalar s = h P h^T + r, so K = P h^T / s needs no factorisation, and the Joseph form is
+    written out as for m <= 3 (P + (E + E^T) with E = k (s k^T / 2 - g), g = h P).
+    ws: c = P h^T (n), k (n), d = s k / 2 - g (n). Returns the NIS or a status code."""
+    n = x.shape[0]
+    mode = flags & 3
+    if mode == 0:
+        t = 0.0
+        for k in range(n):
+            t += H[0, k] * x[k]
+        y = z[0] - t
+    elif mode == 1:
+        y = z[0] - hx[0]
+    else:
+        y = z[0]
+    if not _isfinite(y):
+        return float(NONFINITE)
+    s = 0.0
+    for i in range(n):
+        t = 0.0
+        for k in range(n):
+            t += P[i, k] * H[0, k]
+        ws[i] = t
+        s += H[0, i] * t
+    s += r
+    if not _isfinite(s):
+        return float(NONFINITE)
+    if not s > 0.0:
+        return float(NOT_PD)
+    nis = y * y / s
+    if not nis <= thr:
+        return nis
+    for i in range(n):
+        kv = ws[i] / s
+        ws[n + i] = kv
+        x_out[i] = x[i] + kv * y
+    if flags & JOSEPH:
+        for j in range(n):  # d = s k / 2 - h P
+            t = 0.0
+            for k in range(n):
+                t += H[0, k] * P[k, j]
+            ws[2 * n + j] = 0.5 * s * ws[n + j] - t
+        for i in range(n):
+            ki = ws[n + i]
+            di = ws[2 * n + i]
+            for j in range(i, n):
+                e = ki * ws[2 * n + j] + ws[n + j] * di
+                P_out[i, j] = P[i, j] + e
+                P_out[j, i] = P[j, i] + e
+    else:
+        for i in range(n):
+            ki = ws[n + i]
+            for j in range(n):
+                P_out[i, j] = P[i, j] - ki * ws[j]
+    if not _finish(P_out):
+        return float(BAD_P)
+    return nis
+
+
 def lin_update1(x, P, H, z, hx, var, R, thr, flags, ws, x_out, P_out):
     """``lin_update`` for a single block (joint update, no ``SEQUENTIAL`` flag) with NIS
     gate ``thr``, allocating nothing: every intermediate lives in ``ws`` (at least
     4 m + 4 n m + 2 m^2 + n^2 values; the same arithmetic, in the same order, as
-    ``_lin_update`` on one block).
+    ``_lin_update`` on one block, except that a single row takes ``_update_row``).
 
     Returns the NIS (>= 0): the block was fused and x_out, P_out written iff NIS <= thr.
     A negative value is a status code (NONFINITE, NOT_PD, BAD_P, BAD_SHAPE, WS_SMALL) as a
@@ -271,6 +332,10 @@ def lin_update1(x, P, H, z, hx, var, R, thr, flags, ws, x_out, P_out):
         return float(BAD_SHAPE)
     if ws.shape[0] < 4 * m + 4 * n * m + 2 * m * m + n * n:
         return float(WS_SMALL)
+    if m == 1:
+        return _update_row(
+            x, P, H, z, hx, var[0] if diag else R[0, 0], thr, flags, ws, x_out, P_out
+        )
     # Scratch layout, row-major: y (m), PHt (n, m), S (m, m), L (m, m), w (m), K^T (m, n),
     # b (m), G = H P (m, n), T (n, n), W (n, m).
     o_ph = m

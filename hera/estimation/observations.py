@@ -37,6 +37,33 @@ def _vec(z: Any) -> np.ndarray:
     return np.asarray(z, dtype=_F64).reshape(-1)
 
 
+def _matrix(label: str, H: Any, m: int) -> np.ndarray:
+    """A block's linear measurement matrix as float64 (m, n); a vector is one row."""
+    Hm = H if type(H) is _ND and H.dtype is _F64T else np.asarray(H, dtype=_F64)
+    if Hm.ndim == 1:
+        Hm = Hm.reshape(1, -1)
+    if Hm.ndim != 2 or Hm.shape[0] != m:
+        raise ValueError(f"block {label!r}: H has shape {Hm.shape}, z has {m} rows")
+    return Hm
+
+
+def _noise(label: str, R: Any, m: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(variances, None) when R is a scalar or a vector, (None, covariance) for a matrix."""
+    if isinstance(R, float | int):
+        if not R > 0:
+            raise ValueError(f"block {label!r}: variance R must be > 0, got {R!r}")
+        return (np.full(m, float(R)) if m > 1 else np.array((float(R),))), None
+    Rm = R if type(R) is _ND and R.dtype is _F64T else np.asarray(R, dtype=_F64)
+    if Rm.ndim <= 1:
+        var = Rm.reshape(-1)
+        if var.shape[0] != m:
+            raise ValueError(f"block {label!r}: {var.shape[0]} variances for {m} rows")
+        return var, None
+    if Rm.shape != (m, m):
+        raise ValueError(f"block {label!r}: R has shape {Rm.shape}, expected ({m}, {m})")
+    return None, Rm
+
+
 class Block:
     """One observation block (one sensor sample). See the module docstring.
 
@@ -58,39 +85,21 @@ class Block:
         residual: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
         vectorized: bool = False,
     ) -> None:
-        # Fast paths first (float64 ndarrays of the right rank, float R): this runs once per
-        # sensor sample, so every numpy call here counts.
-        zv = z if type(z) is _ND and z.ndim == 1 and z.dtype is _F64T else _vec(z)
+        # Fast paths first (float64 ndarrays of the right rank): this runs once per sensor
+        # sample, so every operation here counts.
+        zv = z if type(z) is _ND and z.dtype is _F64T and z.ndim == 1 else _vec(z)
         m = zv.shape[0]
-        if (H is None) == (h is None):
-            raise ValueError(f"block {label!r}: give exactly one of H (linear) or h (function)")
-        if H is not None:
-            Hm = H if type(H) is _ND and H.dtype is _F64T else np.asarray(H, dtype=_F64)
-            if Hm.ndim == 1:
-                Hm = Hm.reshape(1, -1)
-            if Hm.ndim != 2 or Hm.shape[0] != m:
-                raise ValueError(f"block {label!r}: H has shape {Hm.shape}, z has {m} rows")
-            H = Hm
-        var = None
-        cov = None
-        if type(R) is _ND and R.ndim == 1 and R.dtype is _F64T:
+        if h is None:
+            if H is None:
+                raise ValueError(f"block {label!r}: give H (linear) or h (function), got neither")
+            H = _matrix(label, H, m)
+        elif H is not None:
+            raise ValueError(f"block {label!r}: give H (linear) or h (function), not both")
+        if type(R) is _ND and R.dtype is _F64T and R.ndim == 1 and R.shape[0] == m:
             var = R
-            if R.shape[0] != m:
-                raise ValueError(f"block {label!r}: {R.shape[0]} variances for {m} rows")
-        elif isinstance(R, float | int):
-            if not R > 0:
-                raise ValueError(f"block {label!r}: variance R must be > 0, got {R!r}")
-            var = np.full(m, float(R)) if m > 1 else np.array((float(R),))
+            cov = None
         else:
-            Rm = R if type(R) is _ND and R.dtype is _F64T else np.asarray(R, dtype=_F64)
-            if Rm.ndim <= 1:
-                var = Rm.reshape(-1)
-                if var.shape[0] != m:
-                    raise ValueError(f"block {label!r}: {var.shape[0]} variances for {m} rows")
-            elif Rm.shape == (m, m):
-                cov = Rm
-            else:
-                raise ValueError(f"block {label!r}: R has shape {Rm.shape}, expected ({m}, {m})")
+            var, cov = _noise(label, R, m)
         self.label = label
         self.z = zv
         self.H = H

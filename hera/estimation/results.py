@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 __all__ = ["BlockOutcome", "UpdateResult", "make_outcome", "make_result", "make_result1"]
 
 
-@dataclass(slots=True, frozen=True)
-class BlockOutcome:
-    """One block's verdict. ``nis`` = y^T S^-1 y against the predicted state (dimensionless,
-    chi-square with ``dim`` degrees of freedom when the model is right); ``threshold`` is the
-    gate used (None when gating was off)."""
+class BlockOutcome(NamedTuple):
+    """One block's verdict (an immutable record). ``nis`` = y^T S^-1 y against the predicted
+    state (dimensionless, chi-square with ``dim`` degrees of freedom when the model is
+    right); ``threshold`` is the gate used (None when gating was off)."""
 
     label: str
     dim: int
@@ -51,29 +51,16 @@ class UpdateResult:
 
 
 _new = object.__new__
-_set_label = BlockOutcome.label.__set__  # type: ignore[attr-defined]
-_set_dim = BlockOutcome.dim.__set__  # type: ignore[attr-defined]
-_set_nis = BlockOutcome.nis.__set__  # type: ignore[attr-defined]
-_set_accepted = BlockOutcome.accepted.__set__  # type: ignore[attr-defined]
-_set_threshold = BlockOutcome.threshold.__set__  # type: ignore[attr-defined]
+_tuple_new = tuple.__new__
+_set_outcomes = UpdateResult.outcomes.__set__  # type: ignore[attr-defined]
 
 
 def make_outcome(
     label: str, dim: int, nis: float, accepted: bool, threshold: float | None
 ) -> BlockOutcome:
     """``BlockOutcome(label, dim, nis, accepted, threshold)`` for the hot path: the same
-    frozen object, built through its slot descriptors (half the cost of the frozen
-    dataclass ``__init__``, which goes through ``object.__setattr__`` per field)."""
-    o = _new(BlockOutcome)
-    _set_label(o, label)
-    _set_dim(o, dim)
-    _set_nis(o, nis)
-    _set_accepted(o, accepted)
-    _set_threshold(o, threshold)
-    return o
-
-
-_set_outcomes = UpdateResult.outcomes.__set__  # type: ignore[attr-defined]
+    record, built by ``tuple.__new__`` (no keyword handling of the generated ``__new__``)."""
+    return _tuple_new(BlockOutcome, (label, dim, nis, accepted, threshold))
 
 
 def make_result(outcomes: list[BlockOutcome]) -> UpdateResult:
@@ -87,13 +74,7 @@ def make_result1(
     label: str, dim: int, nis: float, accepted: bool, threshold: float | None
 ) -> UpdateResult:
     """``UpdateResult([BlockOutcome(label, dim, nis, accepted, threshold)])`` for the
-    one-block hot path: ``make_result(make_outcome(...))`` with one call less."""
-    o = _new(BlockOutcome)
-    _set_label(o, label)
-    _set_dim(o, dim)
-    _set_nis(o, nis)
-    _set_accepted(o, accepted)
-    _set_threshold(o, threshold)
+    one-block hot path: ``make_result([make_outcome(...)])`` with two calls less."""
     r = _new(UpdateResult)
-    _set_outcomes(r, [o])
+    _set_outcomes(r, [_tuple_new(BlockOutcome, (label, dim, nis, accepted, threshold))])
     return r
