@@ -97,6 +97,26 @@ def test_blocks_of_mixed_sizes_stack_like_one_block():
     assert res.accepted == ["a", "b"] and res.rejected == []
 
 
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"R": 1.0}, "give H \\(linear\\) or h \\(function\\), got neither"),
+        ({"R": 1.0, "H": [[1.0, 0.0]], "h": np.sin}, "give H .*, not both"),
+        ({"R": 1.0, "H": np.ones((3, 2))}, "H has shape \\(3, 2\\), z has 2 rows"),
+        ({"R": [1.0, 2.0, 3.0], "h": np.sin}, "3 variances for 2 rows"),
+        ({"R": np.eye(3), "h": np.sin}, "R has shape \\(3, 3\\), expected \\(2, 2\\)"),
+        ({"R": 0.0, "h": np.sin}, "variance R must be > 0"),
+    ],
+)
+def test_bad_block_named_in_error(kwargs, message):
+    """A malformed block is refused when it is added, naming the block and what is wrong;
+    the observations already added stay as they were."""
+    obs = Observations().add("good", [0.0, 1.0], h=np.sin, R=[1.0, 1.0])
+    with pytest.raises(ValueError, match=f"block 'sonar': {message}"):
+        obs.add("sonar", [1.0, 2.0], **kwargs)
+    assert obs.labels == ["good"]
+
+
 def test_no_blocks_means_predict_only():
     kf = KalmanFilter([1.0, 2.0], np.eye(2), F=np.eye(2), Q=np.eye(2))
     res = kf.update(Observations())
