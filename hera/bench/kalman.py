@@ -5,9 +5,10 @@ same model and the same measurements are run through both libraries; the time of
 step is measured with ``time.perf_counter_ns`` and the median is reported (microseconds).
 The two libraries take turns in runs of ``CHUNK`` steps, so a change of load on the
 machine during a case hits both alike, and the garbage collector is paused while timing,
-as ``timeit`` does. Our timed step includes building the observation block, as a fusion model
-does. The estimation backend (numba or numpy) is printed; its one-off compile / cache-load
-time is measured first and reported separately (warm-up steps then run before any timing).
+as ``timeit`` does. Our timed step includes building the observation block, as a fusion
+model does. The estimation backend (numba or numpy) is printed; its one-off compile /
+cache-load time is measured first and reported separately (warm-up steps then run before
+any timing).
 """
 
 from __future__ import annotations
