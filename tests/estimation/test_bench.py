@@ -1,6 +1,9 @@
 """The benchmark CLI runs and prints its table (timings are never asserted)."""
 
+import gc
 import sys
+
+import numpy as np
 
 from hera.bench import kalman as bench
 
@@ -18,3 +21,34 @@ def test_bench_without_filterpy(monkeypatch, capsys):
     assert bench.main(["--quick"]) != 0
     err = capsys.readouterr().err
     assert "not installed" in err and "hera-fusion[bench]" in err
+
+
+def test_ratio_is_paired_over_turns(monkeypatch):
+    """The ratio compares each turn of FilterPy with the turn of ours just before it. On a
+    fake clock where FilterPy's step costs 3x ours and the load on the machine changes
+    between turns, the libraries' own medians follow the load (here the ratio of the two
+    medians would be 0.75) while the median of the per-turn ratios is the true 3; the
+    garbage collector is on again afterwards."""
+    now = [0]
+    calls = {"ours": 0, "theirs": 0}
+    # load per turn (5 turns of 50 steps): ours 1, 1, 4, 4, 4 and FilterPy 1, 4, 4, 1, 1
+    # -> per-turn ratios 3, 12, 3, 0.75, 0.75
+    load = {"ours": [1, 1, 4, 4, 4], "theirs": [1, 4, 4, 1, 1]}
+    cost = {"ours": 10, "theirs": 30}
+
+    def stepper(side):
+        def step(z):
+            now[0] += cost[side] * load[side][calls[side] // 50]
+            calls[side] += 1
+
+        return step
+
+    monkeypatch.setattr(bench.time, "perf_counter_ns", lambda: now[0])
+    zs = np.zeros((250, 1))
+    ours_us, theirs_us, ratio = bench._alternating_medians(
+        stepper("ours"), stepper("theirs"), zs, warmup=0, chunk=50
+    )
+    assert calls == {"ours": 250, "theirs": 250}
+    assert (ours_us, theirs_us) == (0.04, 0.03)
+    assert ratio == 3.0
+    assert gc.isenabled()
