@@ -29,12 +29,19 @@ def _rms_cm(rows, world, lo, hi):
 
 
 def test_e7_keeps_tracking_through_a_sonar_node_kill(cluster):
+    """Issue 6: with sonar_1 SIGKILLed, e7's position RMSE from the kill until 5 s after the
+    node is back stays within twice the baseline, and within it again afterwards.
+
+    The baseline is the RMSE over the rest of the settled run, about 45 s (6 laps) of it:
+    e7's position error wanders slowly between about 0.1 and 1.2 cm (lap-long swings), so
+    over 6 s it ranges 0.46-1.56x the long-run RMSE with no fault at all (a 90 s run), and
+    a baseline of only ~5 s before the kill made the 2x bound fail on quiet runs."""
     c = cluster((ROOT / "deploy" / "train.toml").read_text(), name="run")
-    wait_for(
-        lambda: c.status("computer")["measures"]["track_gyro"]["published"] > 300,
-        40,
-        "15 s of e7 estimates",
-    )
+
+    def published() -> int:
+        return c.status("computer")["measures"]["track_gyro"]["published"]
+
+    wait_for(lambda: published() > 700, 60, "35 s of e7 estimates (25 s settled)")
     t_kill = time.time()
     os.kill(c.pid("sonar_1"), signal.SIGKILL)
     wait_for(lambda: c.launcher_state()["sonar_1"]["restarts"] == 1, 10, "sonar_1 restarted")
@@ -45,6 +52,8 @@ def test_e7_keeps_tracking_through_a_sonar_node_kill(cluster):
         return -1 if reply is None else reply["measures"]["sonar"]["published"]
 
     wait_for(lambda: sonar_1_published() > 40, 30, "sonar_1 publishing again")
+    back = published()
+    wait_for(lambda: published() > back + 400, 40, "20 s more of e7 estimates")
     c.stop()
 
     run = c.run_dir
