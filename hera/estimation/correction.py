@@ -493,60 +493,60 @@ class LinearisedFilter:
             gate = self.gate
         k = active_kernels()
         out = None
-        if k is not None and len(blocks) == 1 and method != "sequential":
+        b = blocks[0] if len(blocks) == 1 else None
+        if (
+            k is not None
+            and b is not None
+            and method != "sequential"
+            and (b.dim <= 3 or b.var is None or method != "auto")  # else sequential rows
+        ):
             # One block on the allocation-free kernel lin_update1: the hot path of a fusion
             # model (one sensor sample per step), written out here because at n <= 9 each
             # Python call layer costs as much as the arithmetic. The kernel checks every
             # shape and numba's dispatch every dtype and rank, so only what is not an array
             # is converted; a failed kernel falls through to the numpy path, which diagnoses.
-            b = blocks[0]
             m = b.dim
             var = b.var
-            if m > 3 and var is not None and method == "auto":  # sequential scalar updates
-                out = _compiled_stacked(k, self.x, self.P, blocks, gate, self.joseph, method)
+            x = self.x
+            h = b.h
+            jac = b.jacobian
+            if b.residual is not None or (h is not None and jac is None):
+                H, z, hx, flags = _kernel_inputs(b, x)
+            elif h is None:  # linear: the kernel computes y = z - H x
+                H, z, hx, flags = b.H, b.z, EMPTY1, 0
+            else:  # as _linearise, the shape checks left to the kernel
+                hx = h(x)
+                if type(hx) is not _ND:
+                    hx = np.asarray(hx, dtype=np.float64).reshape(-1)
+                H = jac(x)
+                if type(H) is not _ND:
+                    H = np.asarray(H, dtype=np.float64).reshape(m, -1)
+                z, flags = b.z, _MODE_HX
+            if var is not None:
+                flags |= _DIAG
+                R = EMPTY2
             else:
-                x = self.x
-                h = b.h
-                jac = b.jacobian
-                if b.residual is not None or (h is not None and jac is None):
-                    H, z, hx, flags = _kernel_inputs(b, x)
-                elif h is None:  # linear: the kernel computes y = z - H x
-                    H, z, hx, flags = b.H, b.z, EMPTY1, 0
-                else:  # as _linearise, the shape checks left to the kernel
-                    hx = h(x)
-                    if type(hx) is not _ND:
-                        hx = np.asarray(hx, dtype=np.float64).reshape(-1)
-                    H = jac(x)
-                    if type(H) is not _ND:
-                        H = np.asarray(H, dtype=np.float64).reshape(m, -1)
-                    z, flags = b.z, _MODE_HX
-                if var is not None:
-                    flags |= _DIAG
-                    R = EMPTY2
-                else:
-                    var, R = EMPTY1, b.R
-                if self.joseph:
-                    flags |= _JOSEPH
-                thr = _INF if gate is None else gate_threshold(gate, m)
-                n = x.shape[0]
-                x_out = _empty(n)
-                P_out = _empty((n, n))
-                P = self.P
-                try:
-                    nis = k.lin_update1(
-                        x, P, H, z, hx, var, R, thr, flags, SCRATCH[0], x_out, P_out
-                    )
-                    if nis == _WS_SMALL:
-                        ws = grow_scratch(4 * m + 4 * n * m + 2 * m * m + n * n)
-                        nis = k.lin_update1(x, P, H, z, hx, var, R, thr, flags, ws, x_out, P_out)
-                except TypeError:  # e.g. an integer Jacobian or h(x): numpy converts it
-                    nis = -1.0
-                if nis <= thr and nis >= 0.0:
-                    self.x = x_out
-                    self.P = P_out
-                    return make_result1(b.label, m, nis, True, None if gate is None else thr)
-                if nis >= 0.0:  # gated out: the state stays as it is
+                var, R = EMPTY1, b.R
+            if self.joseph:
+                flags |= _JOSEPH
+            thr = _INF if gate is None else gate_threshold(gate, m)
+            n = x.shape[0]
+            x_out = _empty(n)
+            P_out = _empty((n, n))
+            P = self.P
+            try:
+                nis = k.lin_update1(x, P, H, z, hx, var, R, thr, flags, SCRATCH[0], x_out, P_out)
+                if nis == _WS_SMALL:
+                    ws = grow_scratch(4 * m + 4 * n * m + 2 * m * m + n * n)
+                    nis = k.lin_update1(x, P, H, z, hx, var, R, thr, flags, ws, x_out, P_out)
+            except TypeError:  # e.g. an integer Jacobian or h(x): numpy converts it
+                nis = -1.0
+            if nis >= 0.0:  # else a status code: the numpy path below decides
+                if nis > thr:  # gated out: the state stays as it is
                     return make_result1(b.label, m, nis, False, thr)
+                self.x = x_out
+                self.P = P_out
+                return make_result1(b.label, m, nis, True, None if gate is None else thr)
         elif not blocks:
             return make_result([])
         elif k is not None:
