@@ -4,10 +4,22 @@ from pathlib import Path as _Path
 
 __version__ = "0.1.0"
 
-# nodes/, models/ and sync/ install as hera.nodes, hera.models and hera.sync (pyproject's
-# package-dir). When this package is imported from a source checkout instead (the repo root
-# on sys.path, as `python -m hera` run from there does), look for them there too, so a
-# checkout with a non-editable install does not lose half of the package.
-_checkout = _Path(__file__).resolve().parent.parent
-if (_checkout / "pyproject.toml").is_file() and (_checkout / "models" / "__init__.py").is_file():
-    __path__.append(str(_checkout))
+
+def _check_checkout() -> None:
+    """nodes/, models/, sync/ and deploy/ install as hera.nodes, hera.models, hera.sync and
+    hera.deploy (pyproject's package-dir). Imported from a source checkout that is not
+    installed in editable mode (``python -m hera`` run in the checkout after ``pip install
+    .``), this package would lack them: say so, and what to run, instead of failing later."""
+    root = _Path(__file__).resolve().parent.parent
+    if not (root / "pyproject.toml").is_file() or not (root / "models").is_dir():
+        return
+    from importlib.util import find_spec
+
+    if find_spec("hera.models") is None:
+        raise ImportError(
+            f"hera is imported from the source checkout {root} without an editable install: "
+            f"run 'pip install -e {root}' (or run hera from another folder)"
+        )
+
+
+_check_checkout()

@@ -1,4 +1,4 @@
-"""The ``hera`` command line: up, node, status, down, inject, measures, bench."""
+"""The ``hera`` command line: run clusters, look at them, score and replay their runs."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="cmd", required=True)
 
     up = sub.add_parser("up", help="start every node of a spec and keep them running")
-    up.add_argument("spec", help="cluster spec (TOML), e.g. deploy/observers.toml")
+    up.add_argument("spec", help="cluster spec (TOML file, or an example's name: hera examples)")
     up.add_argument("--duration", type=float, help="stop after this many seconds")
     up.add_argument(
         "--run-dir", help="where logs, state and recordings go (default hera-run/<cluster>)"
@@ -51,7 +51,10 @@ def _parser() -> argparse.ArgumentParser:
     inj.add_argument("--run-dir")
     inj.add_argument("--cluster")
 
-    sub.add_parser("measures", help="list the installed measures")
+    ms = sub.add_parser("measures", help="list the installed measures, or show one")
+    ms.add_argument("name", nargs="?", help="a measure: show its columns and arguments")
+    sub.add_parser("apps", help="list the installed applications")
+    sub.add_parser("examples", help="list the example specs (hera up NAME runs one)")
 
     rp = sub.add_parser("replay", help="run fusion models offline over recordings")
     rp.add_argument("recordings", help="a run dir or a folder of <name>_<node>.csv files")
@@ -77,10 +80,12 @@ def _parser() -> argparse.ArgumentParser:
         help="s before position/radius errors count (default 10)",
     )
     ev.add_argument(
+        "--after",
         "--omega-after",
+        dest="after",
         type=float,
         default=3.0,
-        help="s before angular speed errors count (default 3)",
+        help="s after a model's first estimate before its errors count (default 3)",
     )
     ev.add_argument("--plots", help="folder for the PNG plots (default RUN_DIR/eval)")
     ev.add_argument("--no-plots", action="store_true")
@@ -94,29 +99,35 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``hera`` console script; returns the exit code."""
+    """Entry point of the ``hera`` console script; returns the exit code (2 for a bad
+    command line, spec or input, with one line per problem on stderr)."""
     args = _parser().parse_args(argv)
     try:
         return _dispatch(args)
-    except (LookupError, ValueError, OSError) as e:
-        print(f"hera {args.cmd}: {e}", file=sys.stderr)
+    except (LookupError, ValueError, OSError, ImportError) as e:
+        for line in str(e).strip().splitlines() or [type(e).__name__]:
+            print(f"hera {args.cmd}: {line}", file=sys.stderr)
         return 2
 
 
 def _dispatch(args: argparse.Namespace) -> int:
     if args.cmd == "node":
         from hera.node import run_node
-        from hera.spec import load_spec
+        from hera.preflight import check_spec
 
+        spec = check_spec(_load(args.spec))
+        spec.node(args.node)  # an unknown node is a bad command line, before any logging
         logging.basicConfig(
             level=args.log_level.upper(),
             format=f"%(asctime)s {args.node} %(name)s %(levelname)s %(message)s",
         )
-        return run_node(load_spec(args.spec), args.node, args.run_dir, args.parent_pid)
+        return run_node(spec, args.node, args.run_dir, args.parent_pid)
     if args.cmd == "up":
+        from hera.examples import resolve_spec
         from hera.launcher import Launcher
 
-        return Launcher(args.spec, args.run_dir, args.duration, interval=args.interval).run()
+        spec = resolve_spec(args.spec)
+        return Launcher(spec, args.run_dir, args.duration, interval=args.interval).run()
     if args.cmd == "status":
         return _status(args)
     if args.cmd == "down":
@@ -124,10 +135,21 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.cmd == "inject":
         return _inject(args)
     if args.cmd == "measures":
-        from hera.plugins import known_measures
+        return _measures(args)
+    if args.cmd == "apps":
+        from hera.plugins import installed_apps
 
-        for name, target in sorted(known_measures().items()):
-            print(f"{name:<16} {target}")
+        for app in installed_apps():
+            print(f"{app.name:<12} {app.title}")
+            if app.measures:
+                print(f"{'':<12} measures: {', '.join(app.measures)}")
+        return 0
+    if args.cmd == "examples":
+        from hera.examples import describe, examples
+
+        for name, path in examples().items():
+            print(f"{name:<14} {describe(path)}")
+            print(f"{'':<14} {path}")
         return 0
     if args.cmd == "replay":
         return _replay(args)
@@ -137,6 +159,45 @@ def _dispatch(args: argparse.Namespace) -> int:
         module = importlib.import_module(f"hera.bench.{args.name}")
         return int(module.main(args.rest) or 0)
     raise AssertionError(args.cmd)
+
+
+def _load(spec_arg: str):
+    """The spec a command line names (a file, or an example's name)."""
+    from hera.examples import resolve_spec
+    from hera.spec import load_spec
+
+    return load_spec(resolve_spec(spec_arg))
+
+
+def _measures(args: argparse.Namespace) -> int:
+    from hera.plugins import AppIndex, find_measure, known_measures
+
+    if args.name is None:
+        for name, target in sorted(known_measures().items()):
+            print(f"{name:<16} {target}")
+        return 0
+    cls = find_measure(args.name)
+    app = AppIndex().app_of(cls)
+    print(
+        f"{args.name}: {cls.__module__}:{cls.__qualname__}"
+        + (f" (application {app.name})" if app else "")
+    )
+    doc = (cls.__doc__ or "").strip().splitlines()
+    if doc:
+        print(f"  {doc[0]}")
+    print(f"  period {cls.period:g} s, sync {'yes' if cls.sync else 'no'}")
+    if cls.columns:
+        print(f"  columns: {', '.join(cls.columns)}")
+    if cls.arguments is None:
+        print("  arguments: not declared (the measure checks its own)")
+    else:
+        print("  arguments:")
+        for a in cls.arguments.settings:
+            print(f"    {a.key:<16} {a.kind.name:<32} default {a.default_text():<10} {a.doc}")
+    settings = getattr(cls, "settings", None)
+    if callable(settings) and settings() is not None:
+        print(f"  model settings: {', '.join(settings())}")
+    return 0
 
 
 def _status(args: argparse.Namespace) -> int:
@@ -199,10 +260,12 @@ def _replay(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from hera.replay import model_args_from_spec, pick_models, replay
-    from hera.spec import load_spec
 
-    spec_path = Path(args.spec) if args.spec else Path(args.recordings) / "cluster.json"
-    models = model_args_from_spec(load_spec(spec_path)) if spec_path.exists() else {}
+    if args.spec:
+        models = model_args_from_spec(_load(args.spec))
+    else:
+        spec_path = Path(args.recordings) / "cluster.json"
+        models = model_args_from_spec(_load(str(spec_path))) if spec_path.exists() else {}
     wanted = args.models.split(",") if args.models else None
     chosen = pick_models(models, wanted)
     if not chosen:
@@ -223,28 +286,25 @@ def _replay(args: argparse.Namespace) -> int:
 def _eval(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from hera.evaluate import evaluate, format_table, plot
+    from hera.application import EvalOptions
+    from hera.evaluate import evaluate, format_table, plot, to_json
+    from hera.plugins import AppIndex
 
-    results = evaluate(args.run_dir, args.omega_after, args.settle)
+    options = EvalOptions(after=args.after, settle=args.settle)
+    index = AppIndex()
+    results = evaluate(args.run_dir, options, index)
     if not results:
-        raise ValueError(f"no model outputs to score in {args.run_dir}")
+        raise ValueError(f"{args.run_dir}: no model outputs to score (no fusion model logged)")
     if args.json:
-        print(
-            json.dumps(
-                [{"model": n, "node": node, **m} for (n, node), m in sorted(results.items())],
-                indent=1,
-            )
-        )
+        print(json.dumps(to_json(results), indent=1))
     else:
         print(format_table(results))
     if not args.no_plots:
         try:
-            files = plot(args.run_dir, args.plots or Path(args.run_dir) / "eval", args.node)
+            out = args.plots or Path(args.run_dir) / "eval"
+            files = plot(args.run_dir, out, args.node, options, index)
             if not args.json:
-                print("plots: " + ", ".join(str(f) for f in files))
-        except ImportError:
-            print(
-                "plots skipped: matplotlib is not installed (pip install 'hera-fusion[plot]')",
-                file=sys.stderr,
-            )
+                print("plots: " + (", ".join(str(f) for f in files) or "none"))
+        except ImportError as e:
+            print(f"plots skipped: {e}", file=sys.stderr)
     return 0

@@ -21,21 +21,28 @@ A :class:`FusionMeasure` runs a model inside a node, in one of two modes (arg ``
 from __future__ import annotations
 
 import heapq
+import inspect
 import json
 import threading
 import time
 from collections import deque
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, ClassVar, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 from hera.measure import Measure, MeasureContext, Reading
 from hera.recordings import start_marker
+from hera.schema import TABLE, Setting, Table, choice, did_you_mean, number
 from hera.store import Sample, Store
+
+if TYPE_CHECKING:  # pragma: no cover
+    from hera.spec import ClusterSpec
 
 
 class FusionModel(Protocol):
-    """What a fusion model gives."""
+    """What a fusion model gives. Optionally, ``counters() -> {name: int}``: its diagnostic
+    counters (samples rejected, late, ...), shown in ``hera status`` and written by
+    ``hera replay``."""
 
     inputs: tuple[str, ...]
     columns: tuple[str, ...]
@@ -46,6 +53,38 @@ class FusionModel(Protocol):
 
     def estimate(self) -> tuple[float, list[float]] | None:
         """(time in epoch s, values) of the current estimate, or None before the first."""
+
+
+def model_counters(model: Any) -> dict[str, int]:
+    """The model's diagnostic counters (its ``counters()``), or none."""
+    counters = getattr(model, "counters", None)
+    return dict(counters()) if callable(counters) else {}
+
+
+def model_settings(model_class: type) -> tuple[str, ...] | None:
+    """The keyword settings ``model_class`` takes (its ``__init__``'s named parameters), or
+    None when it takes any (``**kwargs``)."""
+    params = list(inspect.signature(model_class).parameters.values())
+    if any(p.kind is p.VAR_KEYWORD for p in params):
+        return None
+    return tuple(p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY))
+
+
+FUSION_ARGS = Table(
+    "fusion args",
+    [
+        Setting(
+            "mode",
+            choice("period", "arrival"),
+            "period",
+            "`period`: the latest new samples each period; `arrival`: every sample, in time order",
+        ),
+        Setting("max_age", number(above=0), 0.5, "s; period mode takes samples at most this old"),
+        Setting("backlog", number(1, integer=True), 64, "arrival mode: samples kept per source"),
+        Setting("reorder_s", number(0, 5), 0.1, "arrival mode: s a sample is held for reordering"),
+        Setting("model", TABLE, {}, "the model's own settings"),
+    ],
+)
 
 
 def time_order(samples: Sequence[Sample]) -> list[Sample]:
@@ -93,36 +132,67 @@ class Inbox:
 
 
 class FusionMeasure(Measure):
-    """Runs ``model_class(**args["model"])`` as a measure (see module docstring).
+    """Runs a fusion model as a measure (see module docstring).
 
-    Args: ``mode`` ("period" or "arrival"), ``max_age`` (s, period mode), ``backlog`` and
-    ``reorder_s`` (arrival mode), ``model`` (a table of the model's own parameters).
+    A subclass sets ``model_class`` and, to fix some of the model's settings (a rung of a
+    ladder, say), ``model_fixed``. Args (:data:`FUSION_ARGS`): ``mode`` ("period" or
+    "arrival"), ``max_age`` (s, period mode), ``backlog`` and ``reorder_s`` (arrival mode),
+    ``model`` (a table of the model's own settings: the keyword parameters of
+    ``model_class``, less the fixed ones; an unknown one is refused).
     """
 
     model_class: ClassVar[type]
+    model_fixed: ClassVar[Mapping[str, Any]] = {}
     period = 0.05
+    arguments = FUSION_ARGS
+
+    @classmethod
+    def settings(cls) -> tuple[str, ...] | None:
+        """The model settings a spec may give (None: any)."""
+        known = model_settings(cls.model_class)
+        return None if known is None else tuple(k for k in known if k not in cls.model_fixed)
+
+    @classmethod
+    def check_args(cls, args: Mapping[str, Any], where: str) -> list[str]:
+        problems = super().check_args(args, where)
+        model = args.get("model", {})
+        known = cls.settings()
+        if isinstance(model, Mapping) and known is not None:
+            for key in model:
+                if key not in known:
+                    problems.append(
+                        f"{where}: model: unknown setting {key!r}{did_you_mean(str(key), known)}"
+                        f"; known settings: {', '.join(known)}"
+                    )
+        return problems
+
+    @classmethod
+    def make_model(cls, settings: Mapping[str, Any], where: str = "model") -> Any:
+        """A model with these settings (and the fixed ones); ValueError naming the setting
+        that is unknown or refused by the model."""
+        problems = cls.check_args({"model": dict(settings)}, where)
+        if problems:
+            raise ValueError(problems[0])
+        try:
+            return cls.model_class(**{**dict(settings), **cls.model_fixed})
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"{where}: {e}") from None
 
     def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
+        args = self.prepare_args(args)
         super().init(args, ctx)
-        unknown = set(args) - {"mode", "max_age", "backlog", "reorder_s", "model"}
-        if unknown:
-            raise ValueError(f"{ctx.spec.name}: unknown args {sorted(unknown)}")
-        self.mode = args.get("mode", "period")
-        if self.mode not in ("period", "arrival"):
-            raise ValueError(f"{ctx.spec.name}: mode must be 'period' or 'arrival'")
-        self.max_age = float(args.get("max_age", 0.5))
-        self.reorder = float(args.get("reorder_s", 0.1))
-        if not 0 <= self.reorder <= 5:
-            raise ValueError(f"{ctx.spec.name}: reorder_s must be within [0, 5] s")
+        self.mode = args["mode"]
+        self.max_age = args["max_age"]
+        self.reorder = args["reorder_s"]
         self._held: list[tuple[float, str, str, int, Sample]] = []
         self._newest = float("-inf")
-        self.model = self.model_class(**dict(args.get("model", {})))
+        self.model = self.make_model(args["model"], f"measure {ctx.spec.name!r} model")
         self.columns = tuple(self.model.columns)
         self._inbox = None
         self._cursor = None
         self._first_t: float | None = None
         if self.mode == "arrival":
-            self._inbox = Inbox(ctx.store, self.model.inputs, int(args.get("backlog", 64)))
+            self._inbox = Inbox(ctx.store, self.model.inputs, args["backlog"])
         else:
             self._cursor = ctx.store.cursor(self.model.inputs)
 
@@ -173,17 +243,30 @@ class FusionMeasure(Measure):
             self.ctx.log.warning("cannot record the model's start: %s", e)
 
     def _report(self, fused: int) -> None:
-        """Status counters: samples fused, dropped (backlog), and the model's own counters
-        (integer attributes such as ``late``, ``rejected``)."""
+        """Status counters: samples fused, dropped (backlog), and the model's own
+        (:func:`model_counters`)."""
         c = self.ctx.counters
         c["fused"] = c.get("fused", 0) + fused
         if self._inbox is not None:
             c["dropped"] = self._inbox.dropped
-        for key in ("late", "out_of_order", "rejected", "beam_edge", "direction_fixes", "misses"):
-            value = getattr(self.model, key, None)
-            if isinstance(value, int):
-                c[key] = value
+        c.update(model_counters(self.model))
 
     def close(self) -> None:
         if self._inbox is not None:
             self._inbox.close()
+
+
+def spec_models(spec: ClusterSpec) -> dict[str, type[FusionMeasure]]:
+    """Publication name -> measure class of every fusion model of ``spec`` (measures that
+    do not load are left out: the spec checks report them)."""
+    from hera.plugins import find_measure
+
+    out: dict[str, type[FusionMeasure]] = {}
+    for _, m in spec.measures():
+        try:
+            cls = find_measure(m.use)
+        except (LookupError, TypeError):
+            continue
+        if issubclass(cls, FusionMeasure):
+            out.setdefault(str(m.name), cls)
+    return out

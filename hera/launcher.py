@@ -28,6 +28,10 @@ from pathlib import Path
 from typing import IO, Any
 
 from hera.client import ClusterClient, registry_dir
+from hera.fusion import spec_models
+from hera.panel import estimates_panels, render_panel
+from hera.plugins import AppIndex
+from hera.preflight import check_spec
 from hera.spec import ClusterSpec, load_spec
 from hera.statusview import render_status
 
@@ -49,6 +53,17 @@ def free_ports(host: str, n: int) -> list[int]:
         for s in socks:
             s.close()
     return ports
+
+
+NODE_MAIN = "import sys; del sys.path[0]; from hera.cli import main; sys.exit(main())"
+"""What a node process runs: ``hera node ...`` from the *installed* package. ``python -m``
+and ``-c`` put the current folder first on ``sys.path``, so from a source checkout they
+would import the checkout's ``hera/`` instead; the node drops that entry first."""
+
+
+def node_command(*args: str) -> list[str]:
+    """The command line of a ``hera`` subcommand run in a child process."""
+    return [sys.executable, "-c", NODE_MAIN, *args]
 
 
 @dataclass
@@ -83,7 +98,7 @@ class Launcher:
         out: IO[str] | None = None,
         interval: float = 1.0,
     ) -> None:
-        spec = load_spec(spec_path)
+        spec = check_spec(load_spec(spec_path))
         if spec.base_port == 0 and not all(n.port for n in spec.nodes):
             spec = spec.with_ports(free_ports(spec.host, len(spec.nodes)))
         if "epoch" not in spec.world:
@@ -94,24 +109,11 @@ class Launcher:
         self.out = out or sys.stdout
         self.interval = interval
         self.nodes = {n.name: NodeProc(n.name) for n in spec.nodes}
-        self.models = self._models()
+        self.models = spec_models(spec)
+        self.index = AppIndex()
         self.stopping = threading.Event()
         self._logs: dict[str, IO[bytes]] = {}
         self.registry_file = registry_dir() / f"{spec.name}.json"
-
-    def _models(self) -> dict[str, tuple[str, ...]]:
-        """Fusion measures of the spec and their output columns (for the estimates panel).
-        Loading every measure also checks, before anything starts, that each one exists."""
-        from hera.fusion import FusionMeasure
-        from hera.plugins import find_measure
-
-        out = {}
-        for n in self.spec.nodes:
-            for m in n.measures:
-                cls = find_measure(m.use)  # UnknownMeasure lists the known ones
-                if issubclass(cls, FusionMeasure):
-                    out[m.name] = tuple(cls.columns)
-        return out
 
     # -- process management -------------------------------------------------------------
     def _spawn(self, np: NodeProc) -> None:
@@ -119,10 +121,7 @@ class Launcher:
         if log is None:
             log = open(self.run_dir / "logs" / f"{np.name}.log", "ab")  # noqa: SIM115
             self._logs[np.name] = log
-        cmd = [
-            sys.executable,
-            "-m",
-            "hera",
+        cmd = node_command(
             "node",
             str(self.run_dir / "cluster.json"),
             "--node",
@@ -131,7 +130,7 @@ class Launcher:
             str(self.run_dir),
             "--parent-pid",
             str(os.getpid()),
-        ]
+        )
         np.proc = subprocess.Popen(
             cmd,
             stdout=log,
@@ -250,14 +249,16 @@ class Launcher:
         self.out.flush()
 
     def _estimates(self, client: ClusterClient, status: dict) -> str:
-        from hera.estimates_view import render_estimates
-
         node = self.spec.log_node if self.spec.log_node in status else sorted(status)[0]
         try:
             reply = client.query(node, "store", {}, timeout=0.5).get(node, {})
+            samples = reply.get("samples", [])
+            panels = estimates_panels(self.models, samples, self.spec.world, self.index)
         except Exception as e:  # the view must never take the launcher down
             return f"estimates: query failed ({e})"
-        return render_estimates(self.models, reply.get("samples", []), self.spec.world)
+        if not panels:
+            return "estimates: none yet (models start when their inputs arrive)"
+        return "\n\n".join(render_panel(p) for p in panels)
 
     def _stop_all(self) -> None:
         procs = [p.proc for p in self.nodes.values() if p.proc is not None]

@@ -16,8 +16,21 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, MutableMapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol
+
+from hera.schema import (
+    BOOL,
+    REQUIRED,
+    TABLE,
+    Table,
+    choice,
+    either,
+    number,
+    setting,
+    table_of,
+    text,
+)
 
 if TYPE_CHECKING:  # pragma: no cover - imports for type checkers only
     import zenoh
@@ -26,7 +39,28 @@ if TYPE_CHECKING:  # pragma: no cover - imports for type checkers only
     from hera.keys import Keys
     from hera.store import Store
 
+from hera.resources import Resources
+
 RESTART_TYPES = ("permanent", "transient", "temporary")
+
+
+def _measure_ref(use: str) -> None:
+    if not use or use.count(":") > 1 or use.startswith(":") or use.endswith(":"):
+        raise ValueError("must be an installed measure name or 'package.module:Class'")
+
+
+def _chunk(what: str):
+    def check(value: str) -> None:
+        from hera.keys import check_chunk
+
+        try:
+            check_chunk(value.replace("{i}", "1"), what)  # {i}: the copy's number (count)
+        except ValueError:
+            raise ValueError(
+                "must use only letters, digits, '_', '.' and '-' (no '/', '*', '$')"
+            ) from None
+
+    return check
 
 
 @dataclass(frozen=True, slots=True)
@@ -44,58 +78,100 @@ class Reading:
 
 @dataclass(frozen=True)
 class MeasureSpec:
-    """How the runtime runs one measure worker (from class defaults plus the cluster spec).
+    """One measure worker of a node: the spec's ``[[nodes.measures]]``/``[[measures]]`` entry.
 
-    - ``name``: publication name, the ``<name>`` of ``hera/<cluster>/data/<name>/<node>``;
-    - ``period``: seconds between two deadlines (> 0);
-    - ``iterations``: number of steps, or None to run forever;
-    - ``sync``: ask the sync service of ``sync_group`` for a slot before each step;
-    - ``slot``: seconds a synchronised step needs (the slot length asked for);
-    - ``restart``: ``transient`` (the default, as the original's measures: restarted only
-      after an abnormal end), ``permanent`` (always restarted) or ``temporary`` (never);
-    - ``hang_factor``: a step running longer than ``hang_factor * period`` (and at least
-      ``hang_min`` seconds) is reported hung and the worker replaced;
-    - ``log``: write the CSV log of this measure's samples.
+    Each field is declared once here (kind, default, meaning); the spec parser, its error
+    messages and the README's reference table all come from these declarations
+    (:data:`MEASURE_TABLE`). ``None`` means "the measure class's own default":
+    :meth:`resolve` fills those in from the class before the worker starts.
     """
 
-    name: str
-    period: float
-    iterations: int | None = None
-    sync: bool = False
-    sync_group: str | None = None
-    slot: float = 0.05
-    restart: str = "transient"
-    hang_factor: float = 10.0
-    hang_min: float = 1.0
-    log: bool = False
+    use: str = setting(
+        REQUIRED,
+        text(_measure_ref, "a measure name"),
+        "entry point of group `hera.measures`, or `package.module:Class`",
+    )
+    name: str | None = setting(
+        None,
+        text(_chunk("name"), "a name"),
+        "publication name, the `<name>` of `data/<name>/<node>` (default: the `use`)",
+    )
+    period: float | None = setting(
+        None, number(above=0), "seconds between deadlines (absolute schedule); default: the class's"
+    )
+    iterations: int | str | None = setting(
+        None,
+        either(number(minimum=1, integer=True), choice("forever")),
+        "number of steps, or `forever`; default: the class's",
+    )
+    sync: bool | None = setting(
+        None, BOOL, "ask the sync service for a slot before each step; default: the class's"
+    )
+    sync_group: str | None = setting(
+        None, text(_chunk("group name"), "a group name"), "sync group (default: the name)"
+    )
+    slot: float | None = setting(
+        None, number(above=0), "seconds a synchronised step needs; default: the class's"
+    )
+    restart: str = setting(
+        "transient",
+        choice(*RESTART_TYPES),
+        "`permanent` (always restarted), `transient` (after an abnormal end) or `temporary`",
+    )
+    hang_factor: float = setting(
+        10.0, number(above=1), "a step longer than this many periods (and `hang_min`) is hung"
+    )
+    hang_min: float = setting(1.0, number(minimum=0), "seconds a step may always take")
+    seed: int = setting(0, number(integer=True), "deterministic seed of this measure")
+    args: dict[str, Any] = setting(
+        {}, TABLE, "the measure's arguments, reused verbatim by every restart"
+    )
 
     def __post_init__(self) -> None:
-        from hera.keys import check_chunk
-
-        check_chunk(self.name, "measure name")
-        if not (isinstance(self.period, (int, float)) and self.period > 0):
-            raise ValueError(f"measure {self.name!r}: period must be > 0 s, got {self.period!r}")
-        if self.iterations is not None and (
-            not isinstance(self.iterations, int) or self.iterations < 1
-        ):
-            raise ValueError(
-                f"measure {self.name!r}: iterations must be a positive integer or 'forever', "
-                f"got {self.iterations!r}"
-            )
-        if self.restart not in RESTART_TYPES:
-            raise ValueError(
-                f"measure {self.name!r}: restart must be one of {RESTART_TYPES}, "
-                f"got {self.restart!r}"
-            )
-        if not self.slot > 0:
-            raise ValueError(f"measure {self.name!r}: slot must be > 0 s, got {self.slot!r}")
-        if not self.hang_factor > 1:
-            raise ValueError(f"measure {self.name!r}: hang_factor must be > 1")
+        where = f"measure {self.name or self.use!r}"
+        for s in MEASURE_TABLE.settings:
+            value = getattr(self, s.target)
+            if value is None or value is REQUIRED:
+                continue
+            try:
+                s.kind.convert(value)
+            except ValueError as e:
+                raise ValueError(f"{where}: {s.key} {e}, got {value!r}") from None
 
     @property
     def group(self) -> str:
         """The sync group: ``sync_group`` if given, else the measure name."""
-        return self.sync_group or self.name
+        return self.sync_group or str(self.name)
+
+    @property
+    def steps(self) -> int | None:
+        """Steps to run, None for ever."""
+        return None if self.iterations in (None, "forever") else int(self.iterations)
+
+    def resolve(self, cls: type[Measure]) -> MeasureSpec:
+        """A copy with every "class default" filled in from measure class ``cls``."""
+        return replace(
+            self,
+            name=self.name if self.name is not None else default_name(self.use),
+            period=self.period if self.period is not None else float(cls.period),
+            iterations=(
+                self.iterations
+                if self.iterations is not None
+                else (cls.iterations if cls.iterations is not None else "forever")
+            ),
+            sync=self.sync if self.sync is not None else bool(cls.sync),
+            slot=self.slot if self.slot is not None else float(cls.slot),
+        )
+
+
+def default_name(use: str) -> str:
+    """The publication name of a measure declared without one: its ``use``, lowercased
+    (the class name for ``package.module:Class``)."""
+    return use.rsplit(":", 1)[-1].lower()
+
+
+MEASURE_TABLE = table_of(MeasureSpec, "measure")
+"""The declared settings of one measure (see :class:`MeasureSpec`)."""
 
 
 class SlotGrant(Protocol):
@@ -129,7 +205,9 @@ class MeasureContext:
     - ``counters``: measure-specific counters shown in the node status (e.g. cross-talk);
     - ``grant``: while a synchronised step runs, the grant it runs under, else None;
     - ``seed``: a deterministic seed for this (node, measure), from the spec;
-    - ``run_dir``: the run directory (for recordings), or None.
+    - ``run_dir``: the run directory (for recordings), or None;
+    - ``resources``: objects the node's measures share (boards, a simulated medium), closed
+      with the node; each node (or test) has its own.
     """
 
     node: str
@@ -144,6 +222,7 @@ class MeasureContext:
     grant: Any = None
     seed: int = 0
     run_dir: str | None = None
+    resources: Resources = field(default_factory=lambda: Resources())
     log: logging.Logger = field(default_factory=lambda: logging.getLogger("hera.measure"))
 
     def count(self, counter: str, n: float = 1) -> None:
@@ -165,8 +244,30 @@ class Measure:
     sync: ClassVar[bool] = False
     slot: ClassVar[float] = 0.05
     columns: ClassVar[tuple[str, ...]] = ()
+    arguments: ClassVar[Table | None] = None
+    """The ``args`` this measure takes (a :class:`hera.schema.Table`). When declared, a spec
+    giving an unknown or ill-typed argument is refused before any node starts, and
+    :meth:`init` receives the arguments converted, with the defaults filled in."""
 
     ctx: MeasureContext
+
+    @classmethod
+    def check_args(cls, args: Mapping[str, Any], where: str) -> list[str]:
+        """Every problem with ``args`` (one sentence each, starting with ``where``); empty
+        when they are fine or the measure declares no :attr:`arguments`."""
+        problems: list[str] = []
+        if cls.arguments is not None:
+            cls.arguments.parse(args, where, problems)
+        return problems
+
+    @classmethod
+    def prepare_args(cls, args: Mapping[str, Any]) -> Mapping[str, Any]:
+        """What :meth:`init` receives: ``args`` converted and completed with the declared
+        defaults (raises :class:`hera.schema.SchemaError`), or ``args`` as given when the
+        measure declares no :attr:`arguments`."""
+        if cls.arguments is None:
+            return args
+        return cls.arguments.parse(args, f"measure {cls.__name__} args")
 
     def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
         """Prepare the measure from its arguments; raise to refuse them (clear message)."""

@@ -14,24 +14,27 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+from hera.fusion import FusionMeasure, model_counters, spec_models
 from hera.plugins import find_measure
 from hera.recordings import CsvWriter, read_recordings
 from hera.spec import ClusterSpec
 
 
 def model_args_from_spec(spec: ClusterSpec) -> dict[str, tuple[str, dict[str, Any]]]:
-    """For every fusion measure of the spec: publication name -> (use, model params)."""
-    from hera.fusion import FusionMeasure
+    """For every fusion measure of the spec: publication name -> (use, model settings).
 
+    The settings are checked against the model's (an unknown one is a ValueError naming
+    the spec, the measure and the setting)."""
     out: dict[str, tuple[str, dict[str, Any]]] = {}
-    for node in spec.nodes:
-        for m in node.measures:
-            try:
-                cls = find_measure(m.use)
-            except (LookupError, TypeError):
-                continue
-            if issubclass(cls, FusionMeasure) and m.name not in out:
-                out[m.name] = (m.use, dict(m.args.get("model", {})))
+    classes = spec_models(spec)
+    for node, m in spec.measures():
+        cls = classes.get(str(m.name))
+        if cls is None or m.name in out:
+            continue
+        problems = cls.check_args(m.args, f"{spec.source}: measure {m.name!r} of node {node!r}")
+        if problems:
+            raise ValueError(problems[0])
+        out[str(m.name)] = (m.use, dict(m.args.get("model", {})))
     return out
 
 
@@ -77,10 +80,9 @@ def replay(
     instances = {}
     for name, (use, params) in models.items():
         cls = find_measure(use)
-        model_class = getattr(cls, "model_class", None)
-        if model_class is None:
-            raise ValueError(f"{use!r} is not a fusion measure: it cannot be replayed")
-        instances[name] = model_class(**dict(params))
+        if not issubclass(cls, FusionMeasure):
+            raise ValueError(f"{use!r} is not a fusion model: it cannot be replayed")
+        instances[name] = cls.make_model(params, f"model {name!r} ({use})")
     inputs = {n for m in instances.values() for n in m.inputs}
     samples = read_recordings(recordings, inputs, known=inputs)
     counts = {}
@@ -97,14 +99,27 @@ def replay(
         finally:
             writer.close()
         counts[name] = writer.seq
+        write_counters(out, name, node, model_counters(model))
     src = Path(recordings) / "cluster.json"
     if src.exists() and Path(out).resolve() != Path(recordings).resolve():
         shutil.copy(src, Path(out) / "cluster.json")  # the world, for hera eval
     return counts
 
 
+def write_counters(out: str | Path, name: str, node: str, counters: Mapping[str, int]) -> Path:
+    """Write a model's diagnostic counters to ``<out>/measures/<name>_<node>.counters.json``."""
+    path = Path(out) / "measures" / f"{name}_{node}.counters.json"
+    path.write_text(json.dumps(dict(counters), indent=1))
+    return path
+
+
 def pick_models(all_models: Mapping[str, tuple[str, dict]], wanted: Iterable[str] | None):
-    """The subset of ``all_models`` named in ``wanted`` (names or uses); all if None."""
+    """The subset of ``all_models`` named in ``wanted``; all if None.
+
+    A wanted entry matches a model by its publication name, by its ``use``, or by any alias
+    of the same measure class (``e7`` finds a model declared ``use = "track_gyro"``); a
+    measure of the spec-less kind is replayed with its default settings.
+    """
     if not wanted:
         return dict(all_models)
     out = {}
@@ -112,9 +127,16 @@ def pick_models(all_models: Mapping[str, tuple[str, dict]], wanted: Iterable[str
         hits = {n: v for n, v in all_models.items() if w in (n, v[0])}
         if not hits:
             try:
-                find_measure(w)
-            except LookupError as e:
+                cls = find_measure(w)
+            except (LookupError, TypeError) as e:
                 raise ValueError(str(e)) from None
-            hits = {w: (w, {})}
+            hits = {n: v for n, v in all_models.items() if _loads(v[0]) is cls} or {w: (w, {})}
         out.update(hits)
     return out
+
+
+def _loads(use: str) -> type | None:
+    try:
+        return find_measure(use)
+    except (LookupError, TypeError):
+        return None

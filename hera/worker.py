@@ -152,7 +152,7 @@ class Worker:
 
     def _loop(self, measure: Measure) -> None:
         period = self.spec.period
-        remaining = self.spec.iterations
+        remaining = self.spec.steps
         start = time.monotonic()
         k = 0
         while not self._stop.is_set() and not self.abandoned:

@@ -9,9 +9,10 @@ Modules (one concern each):
 - :mod:`hera.nodes.sim_nav`, :mod:`hera.nodes.sim_sonar`: the simulated boards;
 - :mod:`hera.nodes.air`: sonar cross-talk over the bus;
 - :mod:`hera.nodes.fault_model`, :mod:`hera.nodes.faults`: run-time board faults;
-- :mod:`hera.nodes.boards`: the boards of this process, shared by measures;
+- :mod:`hera.nodes.boards`: the boards of a node, shared by its measures;
 - :mod:`hera.nodes.calibration`, :mod:`hera.nodes.truth`;
-- measures: :mod:`hera.nodes.nav_measures` (nav, mag, nav3), :mod:`hera.nodes.sonar_measure`.
+- :mod:`hera.nodes.measures`: the board measures (nav, mag, nav3, sonar);
+- :mod:`hera.nodes.app`: the simulator as an application (the `board` control verb).
 
 The README ("Simulated boards and their error models") lists every model, default and source.
 """

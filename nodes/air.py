@@ -22,9 +22,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import msgpack
-from hera.nodes.geometry import Vec3
 
 from hera.keys import Keys, check_chunk
+from hera.nodes.geometry import Vec3
 
 log = logging.getLogger("hera.nodes.air")
 

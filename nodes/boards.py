@@ -1,22 +1,36 @@
-"""The simulated boards of this node process, shared by the measures that read them.
+"""The boards of one node, shared by the measures that read them.
 
-A board is identified by ``"<node>/<board>"`` (``board`` is the measure arg ``board``,
-default ``"nav"`` for a Pmod NAV and ``"sonar"`` for a MaxSonar). Several measures of one node
-naming the same board share it, like measures sharing one physical Pmod. A board outlives the
-measures reading it: a restarted measure finds the same board, with any fault still on.
+Each node has one :class:`Boards` registry, kept in its resources (``ctx.resources``, see
+:mod:`hera.resources`): nothing is process-global, so two nodes (or two tests) in one
+process never share a board. A board is identified by ``"<node>/<board>"`` (``board`` is
+the measure arg ``board``, default ``"nav"`` for a Pmod NAV and ``"sonar"`` for a MaxSonar).
+Several measures of one node naming the same board share it, like measures sharing one
+physical Pmod. A board outlives the measures reading it: a restarted measure finds the same
+board, with any fault still on.
 
-Board seed: ``stable_seed(kind, node, board, seed)`` where ``seed`` is the measure arg
-``seed`` if given, else ``ctx.seed``; the first measure to open a board fixes it, so measures
-sharing a board should agree on it (true by default: the spec's seeds).
+Which driver a board gets:
+
+- a driver already registered under its id (:meth:`Boards.register`, e.g. by a test);
+- the measure arg ``driver = "package.module:Class"`` (a real board's driver, made with
+  ``Class(**driver_args)``; it must satisfy :class:`~hera.nodes.driver.NavDriver` or
+  :class:`~hera.nodes.driver.SonarDriver`);
+- else the simulator, built from the world table.
+
+Board seed of a simulator: ``stable_seed(kind, node, board, seed)`` where ``seed`` is the
+measure arg ``seed`` if given, else ``ctx.seed``; the first measure to open a board fixes
+it, so measures sharing a board should agree on it (true by default: the spec's seeds).
 """
 
 from __future__ import annotations
 
+import importlib
 import math
 import threading
 from collections.abc import Mapping
 from typing import Any
 
+from hera.keys import Keys, check_chunk
+from hera.measure import MeasureContext
 from hera.nodes import geometry as gm
 from hera.nodes.air import Air
 from hera.nodes.driver import NavDriver, SonarDriver
@@ -26,105 +40,146 @@ from hera.nodes.sim_nav import SimNavBoard
 from hera.nodes.sim_sonar import SimMaxSonar
 from hera.nodes.sonar_model import SonarModel
 from hera.nodes.world import SonarMount, environment, epoch_of, make_scenario
-
-from hera.keys import Keys, check_chunk
-from hera.measure import MeasureContext
+from hera.resources import Resources
+from hera.schema import BOOL, STR, TABLE, Setting, number
 
 Board = Any
-"""A registered board: a simulator (:class:`SimNavBoard`, :class:`SimMaxSonar`) or any real
-driver satisfying :class:`hera.nodes.driver.NavDriver` or ``SonarDriver``."""
+"""A registered board: a simulator or any driver satisfying the protocols of
+:mod:`hera.nodes.driver`."""
 
-_lock = threading.RLock()
-_boards: dict[str, Board] = {}
-_sessions: dict[str, Any] = {}
-_airs: list[tuple[Any, str, str, Air]] = []
+RESOURCE = "hera.nodes.boards"
+
+BOARD_ARGS = (
+    Setting("model", TABLE, {}, "error model of the simulated board (its model's fields)"),
+    Setting("seed", number(integer=True), None, "board seed (default: the measure's seed)"),
+    Setting("driver", STR, None, "`package.module:Class` of a real board's driver"),
+    Setting("driver_args", TABLE, {}, "keyword arguments of that driver"),
+    Setting("truth", BOOL, False, "record the ground truth under `<run_dir>/truth`"),
+)
+"""The arguments every board measure takes besides ``board`` (see the module docstring)."""
 
 
 def board_id(node: str, board: str) -> str:
-    """The process-wide id of a board: ``"<node>/<board>"``."""
+    """The id of a board: ``"<node>/<board>"``."""
     return f"{check_chunk(node, 'node name')}/{check_chunk(board, 'board name')}"
 
 
-def get(board: str) -> Board:
-    """The board with id ``"<node>/<board>"``, or with the bare name ``board`` if exactly one
-    board of this process has it; ValueError otherwise."""
-    with _lock:
-        if board in _boards:
-            return _boards[board]
-        matches = [b for k, b in _boards.items() if k.split("/", 1)[1] == board]
-        known = sorted(_boards)
-    if len(matches) == 1:
-        return matches[0]
-    if not matches:
-        raise ValueError(f"no board {board!r} in this process; boards: {known}")
-    raise ValueError(f"board name {board!r} is ambiguous; use one of {known}")
+class Boards:
+    """The boards of one node, and the simulated air its sonars share (thread-safe)."""
 
+    def __init__(self) -> None:
+        self._lock = threading.RLock()
+        self._boards: dict[str, Board] = {}
+        self._airs: dict[tuple[str, str], Air] = {}
 
-def all_boards() -> list[Board]:
-    with _lock:
-        return [_boards[k] for k in sorted(_boards)]
+    @property
+    def lock(self) -> threading.RLock:
+        """Held while a board is looked up and created, so two measures make one board."""
+        return self._lock
 
+    def register(self, board: Board, board_id: str | None = None) -> Board:
+        """Add (or replace) a board under ``board_id`` (default ``board.id``). A driver
+        registered as ``"<node>/nav"`` before the measures start is used by them."""
+        bid = board_id if board_id is not None else board.id
+        with self._lock:
+            self._boards[bid] = board
+        return board
 
-def register(board: Board, session: Any = None, board_id: str | None = None) -> Board:
-    """Add (or replace) a board under ``board_id`` (default ``board.id``).
+    def find(self, bid: str) -> Board | None:
+        """The board with exactly this id, or None."""
+        with self._lock:
+            return self._boards.get(bid)
 
-    A real driver registered as ``"<node>/nav"`` (or ``"<node>/sonar"``) before the measures
-    start is used by them instead of the simulator.
-    """
-    bid = board_id if board_id is not None else board.id
-    with _lock:
-        _boards[bid] = board
-        _sessions[bid] = session
-    return board
+    def get(self, board: str) -> Board:
+        """The board with id ``"<node>/<board>"``, or with the bare name ``board`` if exactly
+        one board has it; ValueError naming the known ids otherwise."""
+        with self._lock:
+            if board in self._boards:
+                return self._boards[board]
+            matches = [b for k, b in self._boards.items() if k.split("/", 1)[1] == board]
+            known = sorted(self._boards)
+        if len(matches) == 1:
+            return matches[0]
+        if not matches:
+            raise ValueError(f"no board {board!r} on this node; boards: {known or 'none'}")
+        raise ValueError(f"board name {board!r} is ambiguous; use one of {known}")
 
+    def id_of(self, board: Board) -> str:
+        """The id a board is registered under."""
+        with self._lock:
+            return next(k for k, b in self._boards.items() if b is board)
 
-def ids() -> list[str]:
-    """The ids of every registered board."""
-    with _lock:
-        return sorted(_boards)
+    def ids(self) -> list[str]:
+        """The ids of every board, sorted."""
+        with self._lock:
+            return sorted(self._boards)
 
+    def all(self) -> list[Board]:
+        """Every board, by id."""
+        with self._lock:
+            return [self._boards[k] for k in sorted(self._boards)]
 
-def air_for(session: Any, keys: Keys, group: str) -> Air:
-    """The one :class:`Air` of (session, cluster, group) in this process."""
-    with _lock:
-        for s, cluster, grp, air in _airs:
-            if s is session and cluster == keys.cluster and grp == group:
-                return air
-        air = Air(session, keys, group)
-        _airs.append((session, keys.cluster, group, air))
-        return air
+    def air(self, session: Any, keys: Keys, group: str) -> Air:
+        """The one simulated :class:`Air` of ``group`` on this node."""
+        with self._lock:
+            air = self._airs.get((keys.cluster, group))
+            if air is None:
+                air = self._airs[(keys.cluster, group)] = Air(session, keys, group)
+            return air
 
-
-def reset() -> None:
-    """Forget every board and close every air (tests; a node process never needs it)."""
-    with _lock:
-        for *_, air in _airs:
+    def close(self) -> None:
+        """Close the airs and forget every board (the node is stopping)."""
+        with self._lock:
+            airs = list(self._airs.values())
+            self._airs.clear()
+            self._boards.clear()
+        for air in airs:
             air.close()
-        _airs.clear()
-        _boards.clear()
-        _sessions.clear()
+
+
+def of(resources: Resources) -> Boards:
+    """The :class:`Boards` of the node that owns ``resources`` (made on first use)."""
+    return resources.get_or_create(RESOURCE, Boards)
 
 
 def _seed(ctx: MeasureContext, args: Mapping[str, Any], kind: str, name: str) -> int:
-    seed = args.get("seed", ctx.seed)
+    seed = args.get("seed")
+    seed = ctx.seed if seed is None else seed
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise ValueError(f"seed must be an integer, got {seed!r}")
     return stable_seed(kind, ctx.node, name, seed)
 
 
+def _driver(args: Mapping[str, Any], protocol: type, what: str) -> Board | None:
+    """The real driver the args name (``driver``, ``driver_args``), or None."""
+    target = args.get("driver")
+    if target is None:
+        return None
+    module, _, attr = str(target).partition(":")
+    try:
+        cls = getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError, ValueError) as e:
+        raise ValueError(f"driver {target!r} cannot be loaded: {e}") from None
+    board = cls(**dict(args.get("driver_args") or {}))
+    if not isinstance(board, protocol):
+        raise ValueError(f"driver {target!r} does not implement the {what} driver protocol")
+    return board
+
+
 def open_nav(ctx: MeasureContext, args: Mapping[str, Any]) -> NavDriver:
-    """The simulated Pmod NAV ``args["board"]`` (default "nav") of ``ctx.node``, created on
-    first use from ``ctx.world`` and the args ``model`` (a :class:`NavModel` table) and
-    ``seed``."""
-    name = str(args.get("board", "nav"))
+    """The Pmod NAV ``args["board"]`` (default "nav") of ``ctx.node`` (see the module
+    docstring for which driver it is); a simulator is built from ``ctx.world`` and the
+    args ``model`` (a :class:`NavModel` table) and ``seed``."""
+    name = str(args.get("board") or "nav")
     bid = board_id(ctx.node, name)
-    with _lock:
-        b = _boards.get(bid)
+    boards = of(ctx.resources)
+    with boards.lock:
+        b = boards.find(bid)
         if b is not None:
             if not isinstance(b, NavDriver):
                 raise ValueError(f"board {bid!r} is not a Pmod NAV driver")
             return b
-        board = SimNavBoard(
+        board = _driver(args, NavDriver, "NavDriver") or SimNavBoard(
             bid,
             make_scenario(ctx.world),
             environment(ctx.world),
@@ -132,7 +187,7 @@ def open_nav(ctx: MeasureContext, args: Mapping[str, Any]) -> NavDriver:
             NavModel.from_args(args.get("model")),
             _seed(ctx, args, "pmod_nav", name),
         )
-        return register(board, ctx.session)  # type: ignore[return-value]
+        return boards.register(board, bid)
 
 
 def sonar_mount(ctx: MeasureContext, args: Mapping[str, Any]) -> SonarMount:
@@ -142,8 +197,8 @@ def sonar_mount(ctx: MeasureContext, args: Mapping[str, Any]) -> SonarMount:
     if not isinstance(placed, Mapping):
         raise ValueError("world 'sonars' must be a table of node -> {position, direction}")
     mine = placed.get(ctx.node, {})
-    pos = args.get("position", mine.get("position"))
-    direction = args.get("direction", mine.get("direction"))
+    pos = args.get("position") or mine.get("position")
+    direction = args.get("direction") or mine.get("direction")
     if pos is None or direction is None:
         defaults = make_scenario(ctx.world).default_sonars()
         index = args.get("index", 0)
@@ -156,30 +211,36 @@ def sonar_mount(ctx: MeasureContext, args: Mapping[str, Any]) -> SonarMount:
 
 
 def open_sonar(ctx: MeasureContext, args: Mapping[str, Any]) -> SonarDriver:
-    """The simulated MaxSonar ``args["board"]`` (default "sonar") of ``ctx.node``.
+    """The MaxSonar ``args["board"]`` (default "sonar") of ``ctx.node`` (see the module
+    docstring for which driver it is).
 
-    Args used: ``position``, ``direction``, ``index`` (see :func:`sonar_mount`), ``model``
-    (a :class:`SonarModel` table), ``ping_ms``, ``half_angle_deg``, ``seed``, ``fire_log``
-    (path), ``air_group`` (default: the spec's sync group), ``crosstalk`` (default true: use
-    the air).
+    Simulator args: ``position``, ``direction``, ``index`` (see :func:`sonar_mount`),
+    ``model`` (a :class:`SonarModel` table), ``ping_ms``, ``half_angle_deg``, ``seed``,
+    ``fire_log`` (path), ``air_group`` (default: the spec's sync group), ``crosstalk``
+    (default true: the simulated air carries pings between the group's sonars).
     """
-    name = str(args.get("board", "sonar"))
+    name = str(args.get("board") or "sonar")
     bid = board_id(ctx.node, name)
-    with _lock:
-        b = _boards.get(bid)
-        if b is not None and not isinstance(b, SonarDriver):
-            raise ValueError(f"board {bid!r} is not a MaxSonar driver")
-        if b is not None and (not isinstance(b, SimMaxSonar) or _sessions.get(bid) is ctx.session):
-            return b  # a simulator bound to another (closed) session is rebuilt
+    boards = of(ctx.resources)
+    with boards.lock:
+        b = boards.find(bid)
+        if b is not None:
+            if not isinstance(b, SonarDriver):
+                raise ValueError(f"board {bid!r} is not a MaxSonar driver")
+            return b
+        real = _driver(args, SonarDriver, "SonarDriver")
+        if real is not None:
+            return boards.register(real, bid)
         table = dict(args.get("model") or {})
         for key in ("ping_ms", "half_angle_deg"):
-            if key in args:
+            if args.get(key) is not None:
                 table[key] = args[key]
         model = SonarModel.from_args(table)
         if not math.isfinite(model.half_angle_deg) or model.half_angle_deg >= 90:
             raise ValueError("sonar half_angle_deg must be < 90")
-        group = str(args.get("air_group", ctx.spec.group))
-        air = air_for(ctx.session, ctx.keys, group) if args.get("crosstalk", True) else None
+        group = str(args.get("air_group") or ctx.spec.group)
+        crosstalk = args.get("crosstalk", True)
+        air = boards.air(ctx.session, ctx.keys, group) if crosstalk else None
         fire_log = args.get("fire_log")
         board = SimMaxSonar(
             bid,
@@ -193,4 +254,4 @@ def open_sonar(ctx: MeasureContext, args: Mapping[str, Any]) -> SonarDriver:
             fire_log=str(fire_log) if fire_log else None,
             node=ctx.node,
         )
-        return register(board, ctx.session)  # type: ignore[return-value]
+        return boards.register(board, bid)

@@ -15,10 +15,9 @@ from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from typing import Any
 
+from hera.measure import MeasureContext
 from hera.nodes.driver import NavDriver, NoReading
 from hera.nodes.geometry import Vec3, wrap_angle
-
-from hera.measure import MeasureContext
 
 Turn = Callable[[str, float], None]
 

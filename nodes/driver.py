@@ -13,6 +13,10 @@ y left, z up; a board lying flat and still reads about (0, 0, +1) g). A real LSM
 magnetometer axes turned relative to the accelerometer/gyroscope (the original code flipped
 some signs for it); an adapter for a real board maps the chip axes into the board frame.
 
+Optional protocols, for what only a simulated board has: :class:`SimulatedBoard` (the true
+state of what it senses, for recording ground truth) and :class:`SimulatedSonar` (+ the true
+range). Measures use them when the board offers them and work without them.
+
 Errors: a disconnected board raises :class:`BoardDisconnected` (an ``OSError``, as an I2C or
 UART error would); a reading that is simply missing this time raises :class:`NoReading`
 (measures answer "nothing this step").
@@ -23,9 +27,12 @@ from __future__ import annotations
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 from hera.nodes.geometry import Vec3
+
+if TYPE_CHECKING:  # pragma: no cover
+    from hera.nodes.world import State
 
 
 class DriverError(OSError):
@@ -98,8 +105,32 @@ class SonarDriver(Protocol):
         """The range to the nearest object in the beam (whole inches)."""
         ...
 
-    def read_sample(self) -> RangeSample:
-        """The range with the time of the ping."""
+    def read_sample(self, grant: Any = None) -> RangeSample:
+        """Ping once: the range with the time of the ping. ``grant`` is the sync grant the
+        ping runs under (None when not synchronised); a driver checks it right at the
+        trigger when it can, and a simulated one announces it with the ping."""
+        ...
+
+
+@runtime_checkable
+class SimulatedBoard(Protocol):
+    """Optional: a simulated board knows the true motion of the body it senses."""
+
+    def truth(self, t: float) -> State:
+        """The true state at epoch time ``t`` (s)."""
+        ...
+
+    def rest_truth(self) -> State:
+        """The true state in the scenario's rest ("0 deg") pose."""
+        ...
+
+
+@runtime_checkable
+class SimulatedSonar(SimulatedBoard, Protocol):
+    """Optional: a simulated sonar also knows the true range it should read."""
+
+    def true_range(self, t: float) -> float | None:
+        """The noise-free range (m) at epoch time ``t``, None when nothing is in the beam."""
         ...
 
 
@@ -129,6 +160,6 @@ class SonarDriverBase(ABC):
     @abstractmethod
     def read_range(self) -> int: ...
 
-    def read_sample(self) -> RangeSample:
+    def read_sample(self, grant: Any = None) -> RangeSample:
         t = time.time()
         return RangeSample(t, self.read_range())

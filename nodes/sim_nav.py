@@ -21,7 +21,7 @@ from hera.nodes.fault_model import FaultState
 from hera.nodes.geometry import Vec3
 from hera.nodes.imu_model import NavModel, ideal_acc, ideal_baro, ideal_gyro, ideal_mag
 from hera.nodes.noise import KeyedRandom, RandomWalk
-from hera.nodes.world import Environment, G, Motion, Scenario
+from hera.nodes.world import Environment, G, Motion, Scenario, State, state_at, state_of
 
 _AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
 
@@ -105,6 +105,14 @@ class SimNavBoard:
         if held is not None:
             return held, True
         return self.scenario.motion(t - self.epoch), False
+
+    def truth(self, t: float) -> State:
+        """The true state at epoch time ``t`` (:class:`hera.nodes.driver.SimulatedBoard`)."""
+        return state_at(self.scenario, self.epoch, t)
+
+    def rest_truth(self) -> State:
+        """The true state in the rest pose (:class:`hera.nodes.driver.SimulatedBoard`)."""
+        return state_of(self.scenario.rest_motion(), self.epoch)
 
     def read_acc(self) -> Vec3:
         t = self.clock()

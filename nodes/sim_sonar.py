@@ -23,7 +23,7 @@ from hera.nodes.driver import RangeSample
 from hera.nodes.fault_model import FaultState
 from hera.nodes.noise import KeyedRandom
 from hera.nodes.sonar_model import INCH, SonarModel, nearest_surface, to_inches
-from hera.nodes.world import Motion, Scenario, SonarMount, Target
+from hera.nodes.world import Motion, Scenario, SonarMount, State, Target, state_at, state_of
 
 
 def corrupted_range(
@@ -91,6 +91,15 @@ class SimMaxSonar:
     def true_range(self, t: float) -> float | None:
         """The noise-free nearest-surface range (m) at epoch time ``t``, None if unseen."""
         return nearest_surface(self.mount, self.half_angle, self._motion(t), self.target)
+
+    def truth(self, t: float) -> State:
+        """The target's true state at epoch time ``t`` (a
+        :class:`~hera.nodes.driver.SimulatedSonar`)."""
+        return state_at(self.scenario, self.epoch, t)
+
+    def rest_truth(self) -> State:
+        """The target's true state in the rest pose."""
+        return state_of(self.scenario.rest_motion(), self.epoch)
 
     def _motion(self, t: float) -> Motion:
         return self.scenario.motion(t - self.epoch)

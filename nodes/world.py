@@ -562,6 +562,11 @@ def state_at(scenario: Scenario, epoch: float, t: float) -> State:
     return State(t, m.position, m.velocity, m.acceleration, m.orientation, m.angular_rate)
 
 
+def state_of(m: Motion, t: float) -> State:
+    """A :class:`State` at epoch time ``t`` from a :class:`Motion`."""
+    return State(t, m.position, m.velocity, m.acceleration, m.orientation, m.angular_rate)
+
+
 def truth_at(world: Mapping[str, Any], t: float) -> State:
     """The true state of the world table's scenario at epoch time ``t`` (pure function).
 

@@ -3,15 +3,17 @@
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 import zenoh
-from hera.sync.client import SyncClient
-from hera.sync.election import Timing
-from hera.sync.group import GroupHost
 
 from hera.keys import Keys, check_chunk
+from hera.measure import MeasureContext, MeasureSpec
+from hera.services import ServiceContext, SlotRunner
+from hera.sync.client import SyncClient, run_in_slot
+from hera.sync.election import Timing
+from hera.sync.group import GroupHost
 
 DEFAULT_LEASE_MS = 300
 
@@ -103,6 +105,27 @@ class SyncService:
         """The :class:`hera.measure.SlotClient` for this node's measures."""
         return self._client
 
+    def slot_runner(self, spec: MeasureSpec, ctx: MeasureContext) -> SlotRunner:
+        """What the worker of synchronised measure ``spec`` calls for each step
+        (:class:`hera.services.SlotService`): acquire a slot of ``spec.group`` for
+        ``spec.slot`` s, run the step in it with ``ctx.grant`` set (the measure announces
+        the grant it runs under) after the trigger-time check, release it."""
+        client = self._client
+        holder = f"{self.node}/{spec.name}"
+
+        def in_slot(step: Callable[[], Any]) -> tuple[bool, Any, Any]:
+            def fire(grant: Any) -> Any:
+                grant.require(spec.slot)  # the trigger-time check (see run_in_slot)
+                ctx.grant = grant
+                try:
+                    return step()
+                finally:
+                    ctx.grant = None
+
+            return run_in_slot(client, spec.group, holder, spec.slot, fire, spec.period)
+
+        return in_slot
+
     def status(self) -> dict[str, Any]:
         """JSON-able: timing, each hosted group's state, and this node's measures' waits."""
         t = self.timing
@@ -114,3 +137,12 @@ class SyncService:
             "groups": {g: h.status() for g, h in self.hosts.items()},
             "client": self._client.status(),
         }
+
+
+def node_service(ctx: ServiceContext) -> SyncService:
+    """The ``hera.services`` factory: the sync service of node ``ctx.node``, hosting the
+    groups its ``sync_hosts`` name (each with the spec's full host list) with the spec's
+    ``sync_lease_ms``, and the slot client of its synchronised measures."""
+    groups = ctx.spec.sync_groups()
+    hosts = {g: groups[g] for g in ctx.spec.node(ctx.node).sync_hosts}
+    return SyncService(ctx.session, ctx.keys, ctx.node, hosts, ctx.spec.sync_lease_ms)

@@ -19,7 +19,6 @@ import os
 import signal
 import statistics
 import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Iterator
@@ -27,9 +26,16 @@ from pathlib import Path
 
 from hera.bus import BusConfig, open_session
 from hera.client import ClusterClient
+from hera.launcher import node_command
 from hera.wire import encode
 
-OBSERVERS = Path(__file__).resolve().parents[2] / "deploy" / "observers.toml"
+
+def observers_spec() -> Path:
+    """The observers example shipped in the package (``hera.deploy``)."""
+    from hera.examples import examples
+
+    return examples()["observers"]
+
 
 PAIR = """
 [cluster]
@@ -37,7 +43,7 @@ name = "{name}"
 [[nodes]]
 name = "a"
 [[nodes.measures]]
-use = "hera.bench.beacon:Beacon"
+use = "beacon"
 name = "beacon"
 period = {period}
 [[nodes]]
@@ -55,17 +61,7 @@ def running(spec_text: str | None, spec_path: Path | None = None) -> Iterator[Cl
         run_dir = Path(tmp) / "run"
         env = {**os.environ, "HERA_REGISTRY": str(Path(tmp) / "registry")}
         proc = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "hera",
-                "up",
-                str(spec_path),
-                "--run-dir",
-                str(run_dir),
-                "--interval",
-                "3600",
-            ],
+            node_command("up", str(spec_path), "--run-dir", str(run_dir), "--interval", "3600"),
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
             env=env,
@@ -151,7 +147,7 @@ def _down_seen(c: ClusterClient, victim: str, since: float, timeout: float) -> f
 def observers(cpu_seconds: float, crashes: int) -> dict[str, object]:
     """CPU share, crash restart time and failure detection on the 5-node observer cluster."""
     out: dict[str, object] = {}
-    with running(None, OBSERVERS) as c:
+    with running(None, observers_spec()) as c:
         time.sleep(2.0)
         pids = {n: st["pid"] for n, st in c.status(1.0).items()}
         before = {n: _cpu_seconds(p) for n, p in pids.items()}

@@ -9,15 +9,15 @@ import time
 
 import numpy as np
 import pytest
-from hera.models.bilateration import Bilateration, intersect
-from hera.models.measures import TrackGyro
-from hera.models.train import LADDER, TrainTracker
 
 from hera.args import ArgsStore
 from hera.estimation import numerical_jacobian
 from hera.fusion import time_order
 from hera.keys import Keys
 from hera.measure import MeasureContext, MeasureSpec
+from hera.models.train.bilateration import Bilateration, intersect
+from hera.models.train.measures import TrackGyro
+from hera.models.train.tracker import LADDER, TrainTracker
 from hera.recordings import RecordingError, read_recordings, split_stem
 from hera.store import Sample, Store
 from hera.wire import Message

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 from harness import cluster_env
 
-from hera.evaluate import evaluate
+from hera.evaluate import by_model, evaluate
 
 ROOT = Path(__file__).resolve().parents[2]
 NODES = ("computer", "nav_1")  # the models run on both
@@ -67,7 +67,7 @@ LADDER = ("omega_acc", "track_bilat", "track_sonar", "track_gyro", "track_radius
 
 
 def test_live_run_meets_the_thresholds_on_both_model_nodes(train_run):
-    res = evaluate(train_run)
+    res = by_model(evaluate(train_run))
     for node in NODES:
         for m in LADDER:
             assert res[(m, node)]["estimates"] > 300, (m, node)  # ~20 Hz for 30 s
@@ -87,7 +87,7 @@ def test_each_rung_is_no_worse_than_the_one_before(train_run):
     percentage point of slack (below the truth's own resolution in the thesis). Bilateration
     (e5, a side branch: thesis ch. 3.3 prefers independent ranges) is compared with the
     ranges on position: e6 no worse than e5."""
-    res = evaluate(train_run)
+    res = by_model(evaluate(train_run))
     for node in NODES:
         w = [res[(m, node)]["omega_settled_rms_pct"] for m in FIG_6_5]
         for (a, wa), (b, wb) in pairwise(zip(FIG_6_5, w, strict=True)):
@@ -101,7 +101,7 @@ METRICS = {"omega_rms_pct": 0.02, "pos_rmse_cm": 0.1, "radius_rms_cm": 0.1}
 
 
 def test_replay_scores_within_ten_percent_of_the_live_run(train_run, tmp_path):
-    live = evaluate(train_run)
+    live = by_model(evaluate(train_run))
     for node in NODES:
         out = tmp_path / node
         proc = subprocess.run(
@@ -122,7 +122,7 @@ def test_replay_scores_within_ten_percent_of_the_live_run(train_run, tmp_path):
             timeout=300,
         )
         assert proc.returncode == 0, proc.stderr[-3000:]
-        again = evaluate(out)
+        again = by_model(evaluate(out))
         for model in ("track_gyro", "track_radius", "track_mag"):
             ref, got = live[(model, node)], again[(model, "replay")]
             for metric, floor in METRICS.items():

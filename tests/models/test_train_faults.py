@@ -9,20 +9,20 @@ import time
 from pathlib import Path
 
 from harness import wait_for
-from hera.models.train import truth_columns
 
-from hera.evaluate import load_outputs, world_of
+from hera.evaluate import load_outputs, run_spec
+from hera.models.train.app import train_truth
 from hera.recordings import read_recordings
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _rms_cm(rows, world, lo, hi):
+def _rms_cm(rows, truth, lo, hi):
     errs = [
         math.hypot(v[0] - tr["x [m]"], v[1] - tr["y [m]"])
         for t, v in rows
         if lo <= t < hi
-        for tr in (truth_columns(world, t),)
+        for tr in (truth.at(t),)
     ]
     assert errs, (lo, hi)
     return 100 * math.sqrt(sum(e * e for e in errs) / len(errs))
@@ -57,7 +57,7 @@ def test_e7_keeps_tracking_through_a_sonar_node_kill(cluster):
     c.stop()
 
     run = c.run_dir
-    world = world_of(run)
+    truth = train_truth(run_spec(run).world)
     sonar_1 = [s.t for s in read_recordings(run, ["sonar"]) if s.node == "sonar_1"]
     t_back = min(t for t in sonar_1 if t > t_kill)
     assert t_back - t_kill < 5.0  # the node is back (launcher restart + sync grant)
@@ -65,14 +65,15 @@ def test_e7_keeps_tracking_through_a_sonar_node_kill(cluster):
     for s in load_outputs(run):
         if s.name != "track_gyro":
             continue
-        t0 = s.rows[0][0]
+        rows = list(zip(s.t.tolist(), s.values.tolist(), strict=True))
+        t0 = rows[0][0]
         # estimates never stop while the node is down
-        during = [t for t, _ in s.rows if t_kill - 1 <= t <= fault_end]
+        during = [t for t, _ in rows if t_kill - 1 <= t <= fault_end]
         assert max(b - a for a, b in zip(during, during[1:], strict=False)) < 0.5, s.node
-        settled = [(t, v) for t, v in s.rows if t >= t0 + 10]
+        settled = [(t, v) for t, v in rows if t >= t0 + 10]
         outside = [(t, v) for t, v in settled if not t_kill <= t < fault_end]
-        baseline = _rms_cm(outside, world, t0 + 10, float("inf"))
-        fault = _rms_cm(settled, world, t_kill, fault_end)
-        after = _rms_cm(settled, world, fault_end, float("inf"))
+        baseline = _rms_cm(outside, truth, t0 + 10, float("inf"))
+        fault = _rms_cm(settled, truth, t_kill, fault_end)
+        after = _rms_cm(settled, truth, fault_end, float("inf"))
         assert fault <= 2 * baseline, (s.node, fault, baseline)
         assert after <= 2 * baseline, (s.node, after, baseline)

@@ -3,8 +3,8 @@ cluster (real `hera up` node processes on 127.0.0.1).
 
 Node n1 runs ``nav`` on a simulated Pmod NAV in the "still" scenario (noise: no two readings
 alike) and a counter; n2 runs nothing and only stores what it hears: the test reads nav's
-values there through the ``store`` verb. A fault is switched on n1 with ``inject``
-{"target": "board", ...}; its effect is checked on the samples published after the reply
+values there through the ``store`` verb. A fault is switched on n1 with the simulator's
+``board`` verb; its effect is checked on the samples published after the reply
 (seq from n1's status after the reply, plus one: a step may have read the board just before
 the fault and published just after the reply).
 """
@@ -46,7 +46,7 @@ def _nav(c) -> dict:
 
 
 def _inject(c, **request) -> dict:
-    reply = c.control("n1", "inject", {"target": "board", **request})
+    reply = c.control("n1", "board", request)
     assert reply["ok"], reply
     return reply
 
@@ -134,7 +134,7 @@ def test_stuck_then_cleared_then_disconnected_then_bad_requests(cluster):
 
     # bad requests: ok=false and an error naming what was wrong; nothing changes
     def bad(node: str, request: dict, *words: str) -> None:
-        reply = c.control(node, "inject", {"target": "board", **request})
+        reply = c.control(node, "board", request)
         assert reply["ok"] is False, reply
         for w in words:
             assert w in reply["error"], (w, reply["error"])

@@ -6,9 +6,10 @@ from __future__ import annotations
 import threading
 import time
 
-from hera.nodes import boards
-from hera.nodes.nav_measures import Mag, Nav
-from nodes_helpers import fresh_boards, make_ctx  # noqa: F401 - fresh_boards is a fixture
+from nodes_helpers import boards_of, make_ctx
+
+from hera.nodes.measures.nav import Mag, Nav
+from hera.resources import Resources
 
 TRAIN = {"scenario": "train", "radius": 0.6, "omega": 0.84}
 
@@ -18,11 +19,12 @@ def test_concurrent_nav_and_mag_calibrations_both_see_a_still_board():
     nav, mag = Nav(), Mag()
     errors: list[BaseException] = []
     start = threading.Barrier(2)
+    node = Resources()  # both measures run on node nav_1 and share its board
 
     def run(measure, name, period):
         try:
             start.wait()
-            measure.init({}, make_ctx(name, world, node="nav_1", period=period))
+            measure.init({}, make_ctx(name, world, node="nav_1", period=period, resources=node))
         except BaseException as e:
             errors.append(e)
 
@@ -35,7 +37,7 @@ def test_concurrent_nav_and_mag_calibrations_both_see_a_still_board():
     for t in threads:
         t.join(30)
     assert not errors, errors
-    board = boards.get("nav_1/nav")
+    board = boards_of(nav.ctx).get("nav_1/nav")
     # the calibration found the board's own gyro bias (deg/s), not a share of the motion:
     # a moving-train sample would add about 48 deg/s (0.84 rad/s) to the average
     calib = nav.ctx.args.get("calib/nav_1/nav")

@@ -10,15 +10,12 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from hera.nodes import boards
-from hera.nodes.air import Ping
-from hera.nodes.sonar_measure import Sonar
-from nodes_helpers import (
-    fresh_boards,  # noqa: F401 - autouse fixture
-    make_ctx,
-)
+from nodes_helpers import boards_of, make_ctx
 
 from hera.bus import BusConfig, open_session, tcp_endpoint
+from hera.nodes.air import Ping
+from hera.nodes.measures.sonar import Sonar
+from hera.resources import Resources
 
 WORLD = {"scenario": "still", "position": [0.0, 2.0, 0.0], "epoch": 0.0}
 ROUNDS = 6
@@ -131,12 +128,14 @@ def test_sonars_taking_turns_never_corrupt(two_sessions, tmp_path) -> None:
     assert all(e - s >= 0.03 for pings in log.values() for s, e in pings)
 
 
-def test_sonars_of_one_process_share_the_air(tmp_path) -> None:
+def test_sonars_of_one_node_share_the_air(tmp_path) -> None:
     ms, ctxs = [], []
+    node = Resources()
     for i in range(2):
-        ctx = make_ctx("sonar", WORLD, node=f"s{i + 1}")
+        ctx = make_ctx(f"sonar{i + 1}", WORLD, resources=node, sync_group="sonar")
         m = Sonar()
-        m.init({"position": [0.3 * i, 0, 0], "direction": [0, 1, 0], "ping_ms": 20}, ctx)
+        args = {"position": [0.3 * i, 0, 0], "direction": [0, 1, 0], "ping_ms": 20}
+        m.init({**args, "board": f"sonar{i + 1}"}, ctx)
         ms.append(m)
         ctxs.append(ctx)
     assert ms[0].sim.air is ms[1].sim.air
@@ -154,11 +153,11 @@ def test_sonars_of_one_process_share_the_air(tmp_path) -> None:
         t.join(timeout=30)
     assert sum(c.get("crosstalk", 0) for c in (ctx.counters for ctx in ctxs)) >= 3
     # separate groups do not hear each other
-    other = make_ctx("sonar", WORLD, node="s3", sync_group="far")
+    other = make_ctx("sonar", WORLD, sync_group="far", resources=node)
     m3 = Sonar()
-    m3.init({"ping_ms": 1}, other)
+    m3.init({"ping_ms": 1, "board": "sonar3"}, other)
     assert m3.sim.air is not ms[0].sim.air
-    assert len(boards.ids()) == 3
+    assert boards_of(other).ids() == ["n1/sonar1", "n1/sonar2", "n1/sonar3"]
 
 
 def test_malformed_pings_are_rejected_and_counted(two_sessions) -> None:

@@ -2,17 +2,15 @@
 
 from __future__ import annotations
 
+from nodes_helpers import FakeClock, make_ctx
+
 from hera.nodes import boards
 from hera.nodes.imu_model import NavModel
 from hera.nodes.sim_nav import SimNavBoard
 from hera.nodes.sim_sonar import SimMaxSonar
 from hera.nodes.sonar_model import SonarModel
 from hera.nodes.world import SonarMount, environment, make_scenario
-from nodes_helpers import (
-    FakeClock,
-    fresh_boards,  # noqa: F401 - autouse fixture
-    make_ctx,
-)
+from hera.resources import Resources
 
 WORLD = {"scenario": "train", "epoch": 1000.0}
 
@@ -67,20 +65,20 @@ def test_sonar_readings_repeat_for_the_same_seed_and_times() -> None:
 
 def test_board_seed_comes_from_ctx_seed_or_the_seed_arg() -> None:
     def bias(seed: int, args: dict) -> tuple:
-        boards.reset()
         return boards.open_nav(make_ctx("nav", WORLD, seed=seed), args).acc_bias
 
     assert bias(1, {}) == bias(1, {})
     assert bias(1, {}) != bias(2, {})
     assert bias(1, {"seed": 9}) == bias(2, {"seed": 9})
-    boards.reset()
     one = boards.open_nav(make_ctx("nav", WORLD, node="n1"), {})
     two = boards.open_nav(make_ctx("nav", WORLD, node="n2"), {})
     assert one.acc_bias != two.acc_bias  # every node's board is a different board
 
 
 def test_measures_of_one_node_share_one_board() -> None:
-    a = boards.open_nav(make_ctx("nav", WORLD), {})
-    b = boards.open_nav(make_ctx("nav3", WORLD), {})
-    c = boards.open_nav(make_ctx("mag", WORLD), {"board": "nav2"})
+    node = Resources()
+    a = boards.open_nav(make_ctx("nav", WORLD, resources=node), {})
+    b = boards.open_nav(make_ctx("nav3", WORLD, resources=node), {})
+    c = boards.open_nav(make_ctx("mag", WORLD, resources=node), {"board": "nav2"})
     assert a is b and a is not c
+    assert boards.open_nav(make_ctx("nav", WORLD), {}) is not a  # another node's board

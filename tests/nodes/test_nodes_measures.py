@@ -10,21 +10,18 @@ import statistics
 from pathlib import Path
 
 import pytest
+from nodes_helpers import FakeClock, boards_of, make_ctx
+
+from hera.args import ArgsStore
 from hera.nodes import boards, calibration
 from hera.nodes import geometry as gm
 from hera.nodes.driver import NavDriver, NavDriverBase
 from hera.nodes.imu_model import NavModel
-from hera.nodes.nav_measures import Mag, Nav, Nav3
+from hera.nodes.measures.nav import Mag, Nav, Nav3
 from hera.nodes.sim_nav import SimNavBoard
 from hera.nodes.truth import truth_at
 from hera.nodes.world import environment, make_scenario
-from nodes_helpers import (
-    FakeClock,
-    fresh_boards,  # noqa: F401 - autouse fixture
-    make_ctx,
-)
-
-from hera.args import ArgsStore
+from hera.resources import Resources
 
 TRAIN = {"scenario": "train", "epoch": 1000.0}
 PLANTED = [0.31, -0.42, 0.17]
@@ -58,14 +55,25 @@ def test_still_calibration_finds_bias_and_tilt() -> None:
     assert math.degrees(math.asin(cal["sin_tilt"] + b.acc_bias[0])) == pytest.approx(5.0, abs=0.1)
 
 
-def _train_ctx(name: str, tmp_path: Path | None = None, args: ArgsStore | None = None):
+def _train_ctx(
+    name: str,
+    tmp_path: Path | None = None,
+    args: ArgsStore | None = None,
+    node: Resources | None = None,
+):
+    """A context of a measure of node n1 (``node``: its resources, shared by its measures)."""
     return make_ctx(
-        name, TRAIN, args=args, run_dir=str(tmp_path) if tmp_path else None, period=0.05
+        name,
+        TRAIN,
+        args=args,
+        run_dir=str(tmp_path) if tmp_path else None,
+        period=0.05,
+        resources=node,
     )
 
 
-def _use_clock(clock: FakeClock) -> None:
-    for b in boards.all_boards():
+def _use_clock(ctx, clock: FakeClock) -> None:
+    for b in boards_of(ctx).all():
         b.clock = clock
 
 
@@ -83,7 +91,7 @@ def test_nav_on_the_train_measures_centripetal_acc_and_rate(tmp_path) -> None:
     m = Nav()
     m.init({"truth": True}, ctx)
     assert ctx.args.get("calib/n1/nav")["n"] == 500
-    _use_clock(FakeClock(start=1000.0, step=0.05))
+    _use_clock(ctx, FakeClock(start=1000.0, step=0.05))
     values = [m.measure().values for _ in range(1500)]
     m.close()
     a_y = statistics.fmean(v[0] for v in values)
@@ -101,17 +109,17 @@ def test_nav_on_the_train_measures_centripetal_acc_and_rate(tmp_path) -> None:
 
 
 def test_calibration_is_stored_and_not_redone_after_a_restart() -> None:
-    store = ArgsStore("n1")
+    store, node = ArgsStore("n1"), Resources()
     m = Nav()
-    m.init({}, _train_ctx("nav", args=store))
-    board = boards.get("n1/nav")
+    m.init({}, _train_ctx("nav", args=store, node=node))
+    board = boards.of(node).get("n1/nav")
     reads = board.reads
     again = Nav()  # the supervisor's fresh instance after a crash
-    again.init({}, _train_ctx("nav", args=store))
+    again.init({}, _train_ctx("nav", args=store, node=node))
     assert board.reads == reads  # no new calibration samples
     assert (again.acc0, again.gyro0, again.sin_tilt) == (m.acc0, m.gyro0, m.sin_tilt)
     store.put("calib/n1/nav", {"acc": "garbage"})
-    Nav().init({}, _train_ctx("nav", args=store))
+    Nav().init({}, _train_ctx("nav", args=store, node=node))
     assert board.reads > reads  # malformed stored calibration: recalibrated
     assert calibration.is_vec(store.get("calib/n1/nav")["acc"])
 
@@ -127,7 +135,7 @@ def test_mag_heading_follows_the_train(tmp_path) -> None:
     bias = ctx.args.get("calib/n1/mag")["bias"]
     assert bias == pytest.approx([PLANTED[0] + tilt_leak, PLANTED[1]], abs=0.01)
     clock = FakeClock(start=1000.0, step=0.3)
-    _use_clock(clock)
+    _use_clock(ctx, clock)
     errors = []
     for _ in range(60):
         h = m.measure().values[0]
@@ -142,12 +150,13 @@ def test_mag_heading_follows_the_train(tmp_path) -> None:
 
 
 def test_mag_clockwise_gives_the_original_sign() -> None:
-    store = ArgsStore("n1")
-    _fake_board(_train_ctx("mag", args=store))
+    store, node = ArgsStore("n1"), Resources()
+    ctx = _train_ctx("mag", args=store, node=node)
+    _fake_board(ctx)
     ccw, cw = Mag(), Mag()
-    ccw.init({}, _train_ctx("mag", args=store))
-    cw.init({"clockwise": True}, _train_ctx("mag", args=store))
-    _use_clock(FakeClock(start=1002.0, step=0.0))  # same instant, held
+    ccw.init({}, _train_ctx("mag", args=store, node=node))
+    cw.init({"clockwise": True}, _train_ctx("mag", args=store, node=node))
+    _use_clock(ctx, FakeClock(start=1002.0, step=0.0))  # same instant, held
     a, b = ccw.measure().values[0], cw.measure().values[0]
     assert gm.wrap_angle(a + b) == pytest.approx(0.0, abs=0.02)
 
@@ -185,22 +194,23 @@ def test_a_real_driver_replaces_the_simulator() -> None:
     board = FlatBoard()
     assert isinstance(board, NavDriver)
     assert isinstance(_sim({"scenario": "still"}), NavDriver)
-    boards.register(board, board_id="n1/nav")
+    ctx = make_ctx("nav")
+    boards_of(ctx).register(board, board_id="n1/nav")
     m = Nav()
-    m.init({"calib_samples": 5}, make_ctx("nav"))
+    m.init({"calib_samples": 5}, ctx)
     assert m.measure().values == pytest.approx((0.0, 0.0))
     with pytest.raises(ValueError, match="real driver"):
         from hera.nodes import faults
 
-        faults.set_fault("n1/nav", "stuck")
+        faults.set_fault(boards_of(ctx), "n1/nav", "stuck")
     with pytest.raises(ValueError, match="cannot turn itself"):
-        Mag().init({}, make_ctx("mag"))
+        Mag().init({}, make_ctx("mag", resources=ctx.resources))
 
 
 def test_nav_args_are_checked() -> None:
-    with pytest.raises(ValueError, match="unknown args"):
+    with pytest.raises(ValueError, match="unknown key 'calib'; known keys: board, .*calib_samples"):
         Nav().init({"calib": 3}, make_ctx("nav"))
-    with pytest.raises(ValueError, match="positive integer"):
+    with pytest.raises(ValueError, match="calib_samples must be an integer >= 1, got 0"):
         Nav().init({"calib_samples": 0}, make_ctx("nav"))
     with pytest.raises(ValueError, match="unknown NAV model keys"):
         Nav().init({"model": {"noise": 1}, "board": "b2"}, make_ctx("nav"))

@@ -6,15 +6,15 @@ import math
 import statistics
 
 import pytest
+from nodes_helpers import (
+    FakeClock,
+)
+
 from hera.nodes import geometry as gm
 from hera.nodes.imu_model import NavModel
 from hera.nodes.noise import RandomWalk
 from hera.nodes.sim_nav import SimNavBoard
 from hera.nodes.world import G, environment, make_scenario
-from nodes_helpers import (
-    FakeClock,
-    fresh_boards,  # noqa: F401 - autouse fixture
-)
 
 N = 3000
 

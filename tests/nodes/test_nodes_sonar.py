@@ -6,16 +6,16 @@ import math
 import statistics
 
 import pytest
-from hera.nodes.driver import RangeSample, SonarDriver
-from hera.nodes.sim_sonar import SimMaxSonar
-from hera.nodes.sonar_measure import Sonar
-from hera.nodes.sonar_model import INCH, SonarModel, nearest_surface
-from hera.nodes.world import Motion, SonarMount, Target, make_scenario
 from nodes_helpers import (
     FakeClock,
-    fresh_boards,  # noqa: F401 - autouse fixture
     make_ctx,
 )
+
+from hera.nodes.driver import RangeSample, SonarDriver
+from hera.nodes.measures.sonar import Sonar
+from hera.nodes.sim_sonar import SimMaxSonar
+from hera.nodes.sonar_model import INCH, SonarModel, nearest_surface
+from hera.nodes.world import Motion, SonarMount, Target, make_scenario
 
 ORIGIN_UP_Y = SonarMount((0.0, 0.0, 0.0), (0.0, 1.0, 0.0))
 
@@ -107,7 +107,7 @@ def test_sonar_measure_layout_and_undefined_beyond_max_range() -> None:
 
 
 def test_sonar_args_are_checked() -> None:
-    with pytest.raises(ValueError, match="unknown args"):
+    with pytest.raises(ValueError, match="unknown key 'max_rnage' .did you mean 'max_range'"):
         Sonar().init({"max_rnage": 2}, make_ctx("sonar"))
     with pytest.raises(ValueError, match="sonar position"):
         Sonar().init({"position": [1, 2], "direction": [0, 1, 0]}, make_ctx("sonar"))

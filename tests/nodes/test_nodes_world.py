@@ -5,9 +5,9 @@ from __future__ import annotations
 import math
 
 import pytest
+
 from hera.nodes import geometry as gm
 from hera.nodes.world import SCENARIOS, make_scenario, state_at, truth_at
-from nodes_helpers import fresh_boards  # noqa: F401 - autouse fixture
 
 H = 1e-4
 

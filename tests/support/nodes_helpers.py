@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from typing import Any
-
-import pytest
-from hera.nodes import boards
 
 from hera.args import ArgsStore
 from hera.keys import Keys
 from hera.measure import MeasureContext, MeasureSpec
+from hera.nodes import boards
+from hera.resources import Resources
 from hera.store import Store
 
 
@@ -37,10 +35,12 @@ def make_ctx(
     run_dir: str | None = None,
     period: float = 0.1,
     sync_group: str | None = None,
+    resources: Resources | None = None,
     **spec: Any,
 ) -> MeasureContext:
     """A MeasureContext as the runtime would build it, for cluster "t" (``spec``: more
-    MeasureSpec fields, e.g. iterations or restart)."""
+    MeasureSpec fields, e.g. iterations or restart). Contexts given the same ``resources``
+    are measures of one node: they share its boards."""
     return MeasureContext(
         node=node,
         cluster="t",
@@ -52,13 +52,10 @@ def make_ctx(
         world=world if world is not None else {"scenario": "still", "epoch": 0.0},
         seed=seed,
         run_dir=run_dir,
+        resources=resources if resources is not None else Resources(),
     )
 
 
-@pytest.fixture(autouse=True)
-def fresh_boards() -> Iterator[None]:
-    """Every test starts and ends with an empty board registry (import it into a test
-    module to apply it there; no conftest.py, whose module name other folders import)."""
-    boards.reset()
-    yield
-    boards.reset()
+def boards_of(ctx: MeasureContext) -> boards.Boards:
+    """The board registry of the node ``ctx`` belongs to."""
+    return boards.of(ctx.resources)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 
 import pytest
+
 from hera.sync.harness import Cluster, Firing, check_firings
 
 HOSTS = ["s1", "s2", "s3"]

@@ -6,6 +6,7 @@ import heapq
 import random
 
 import pytest
+
 from hera.sync.election import Term, Timing, Voter
 
 T = Timing(lease=0.3, max_slot=0.15, margin=0.05)

@@ -6,6 +6,7 @@ import time
 
 import msgpack
 import pytest
+
 from hera.sync.client import Grant, SlotLost, run_in_slot, slot_duration
 from hera.sync.protocol import (
     AcquireRequest,

@@ -24,30 +24,110 @@ def test_resolved_json_round_trips(tmp_path):
 
 
 BASE = {"cluster": {"name": "c"}, "nodes": [{"name": "a"}]}
+CHUNK = "must use only letters, digits, '_', '.' and '-' (no '/', '*', '$')"
+MEASURE_KEYS = (
+    "use, name, period, iterations, sync, sync_group, slot, restart, hang_factor, hang_min, "
+    "seed, args"
+)
 
 
 @pytest.mark.parametrize(
     ("change", "message"),
     [
-        ({"cluster": {"name": "a/b"}}, "[cluster] name"),
-        ({"nodes": []}, "at least one [[nodes]]"),
-        ({"nodes": [{"name": "a"}, {"name": "a"}]}, "duplicate node name"),
-        ({"measures": [{"name": "x"}]}, "needs 'use'"),
-        ({"measures": [{"use": "counter", "on": ["zz"]}]}, "'on' must be"),
-        ({"measures": [{"use": "counter", "period": -1}]}, "period must be > 0"),
-        ({"measures": [{"use": "counter", "restart": "sometimes"}]}, "restart must be"),
-        ({"measures": [{"use": "counter", "colour": 1}]}, "unknown field(s) ['colour']"),
-        ({"measures": [{"use": "counter"}, {"use": "counter"}]}, "two measures publish as"),
-        ({"cluster": {"name": "c", "base_port": 80}}, "base_port"),
-        ({"logging": {"node": "zz"}}, "[logging] node"),
-        ({"supervisor": {"strategy": "all_for_none"}}, "strategy"),
-        ({"wat": {}}, "unknown table"),
+        ({"cluster": {"name": "a/b"}}, f"s.toml: [cluster]: name {CHUNK}, got 'a/b'"),
+        (
+            {"cluster": {}},
+            "s.toml: [cluster]: name is required (cluster name: the key prefix `hera/<name>/`)",
+        ),
+        ({"nodes": []}, "s.toml: [[nodes]]: a spec needs at least one [[nodes]] entry"),
+        ({"nodes": [{"name": "a"}, {"name": "a"}]}, "s.toml: [[nodes]]: two nodes are called 'a'"),
+        (
+            {"nodes": [{"nmae": "a"}]},
+            (
+                "s.toml: [[nodes]] #1: unknown key 'nmae' (did you mean 'name'?); known keys: "
+                "name, port, sync_hosts, measures",
+                "s.toml: [[nodes]] #1: name is required (node name, the `<node>` of its keys)",
+            ),
+        ),
+        (
+            {"nodes": [{"name": "a", "sync_host": ["g"]}]},
+            "s.toml: [[nodes]] #1 (a): unknown key 'sync_host' (did you mean 'sync_hosts'?); "
+            "known keys: name, port, sync_hosts, measures",
+        ),
+        (
+            {"cluster": {"name": "c", "base_prot": 7000}},
+            "s.toml: [cluster]: unknown key "
+            "'base_prot' (did you mean 'base_port'?); known keys: name, host, base_port, lease_ms, "
+            "sync_lease_ms, estimation_backend",
+        ),
+        (
+            {"supervisor": {"intensty": 3}},
+            "s.toml: [supervisor]: unknown key 'intensty' (did you "
+            "mean 'intensity'?); known keys: strategy, intensity, period, shutdown",
+        ),
+        (
+            {"measures": [{"name": "x"}]},
+            "s.toml: [[measures]] #1: use is required (entry point of "
+            "group `hera.measures`, or `package.module:Class`)",
+        ),
+        (
+            {"measures": [{"use": "counter", "on": ["zz"]}]},
+            "s.toml: [[measures]] #1: on names unknown node(s) ['zz']; nodes: a",
+        ),
+        (
+            {"measures": [{"use": "counter", "period": -1}]},
+            "s.toml: [[measures]] #1: period must be a number > 0, got -1",
+        ),
+        (
+            {"measures": [{"use": "counter", "restart": "sometimes"}]},
+            "s.toml: [[measures]] #1: "
+            "restart must be one of permanent, transient, temporary, got 'sometimes'",
+        ),
+        (
+            {"measures": [{"use": "counter", "colour": 1}]},
+            f"s.toml: [[measures]] #1: unknown key 'colour'; known keys: {MEASURE_KEYS}",
+        ),
+        (
+            {"measures": [{"use": "counter"}, {"use": "counter"}]},
+            "s.toml: node a: two measures publish as 'counter'",
+        ),
+        (
+            {"cluster": {"name": "c", "base_port": 80}},
+            "s.toml: [cluster]: base_port must be 0 "
+            "(pick free ports) or an integer within [1024, 65000), got 80",
+        ),
+        ({"logging": {"node": "zz"}}, "s.toml: [logging]: node 'zz' is not a node of the spec"),
+        (
+            {"supervisor": {"strategy": "all_for_none"}},
+            "s.toml: [supervisor]: strategy must be "
+            "one of one_for_one, one_for_all, rest_for_one, got 'all_for_none'",
+        ),
+        (
+            {"wat": {}},
+            "s.toml: unknown table 'wat'; known tables: cluster, supervisor, logging, "
+            "world, defaults, nodes, measures",
+        ),
     ],
 )
-def test_bad_specs_fail_naming_the_field(change, message):
+def test_bad_specs_fail_with_one_sentence_naming_file_table_and_key(change, message):
     with pytest.raises(SpecError) as e:
         parse_spec({**BASE, **change}, "s.toml")
-    assert message in str(e.value) and str(e.value).startswith("s.toml:")
+    assert e.value.problems == ([message] if isinstance(message, str) else list(message))
+
+
+def test_every_problem_of_a_spec_is_reported_at_once():
+    bad = {
+        "cluster": {"name": "c", "lease_ms": "2s"},
+        "nodes": [{"name": "a", "port": -1}],
+        "measures": [{"use": "counter", "period": 0}],
+    }
+    with pytest.raises(SpecError) as e:
+        parse_spec(bad, "s.toml")
+    assert e.value.problems == [
+        "s.toml: [cluster]: lease_ms must be an integer >= 100 and <= 600000, got '2s'",
+        "s.toml: [[nodes]] #1 (a): port must be an integer >= 0 and <= 65535, got -1",
+        "s.toml: [[measures]] #1: period must be a number > 0, got 0",
+    ]
 
 
 def test_unknown_node_lists_the_known_ones():

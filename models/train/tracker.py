@@ -34,7 +34,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from hera.models.beams import in_cone, unit_directions
 
 from hera.estimation import (
     ExtendedKalmanFilter,
@@ -42,6 +41,7 @@ from hera.estimation import (
     angle_residual,
     numerical_jacobian,
 )
+from hera.models.train.beams import in_cone, unit_directions
 from hera.store import Sample
 
 RUNGS = ("e4", "e5", "e6", "e7", "e8", "e9")
@@ -409,6 +409,19 @@ class TrainTracker:
         x[w_i] = -x[w_i]
         self.ekf.reset(x, self.ekf.P)
 
+    def counters(self) -> dict[str, int]:
+        """Diagnostic counters: samples ``late`` (dropped), ``out_of_order`` (fused late),
+        sonar rows ``rejected`` by the gate or skipped at the ``beam_edge``, w mirrored
+        (``direction_fixes``), tracking lost (``unlocks``)."""
+        return {
+            "late": self.late,
+            "out_of_order": self.out_of_order,
+            "rejected": self.rejected,
+            "beam_edge": self.beam_edge,
+            "direction_fixes": self.direction_fixes,
+            "unlocks": self.unlocks,
+        }
+
     def estimate(self) -> tuple[float, list[float]] | None:
         """(time, state) of the latest estimate, theta wrapped to (-pi, pi]."""
         if self.t is None:
@@ -417,21 +430,3 @@ class TrainTracker:
         if self.n > 1:
             x[2] = math.atan2(math.sin(x[2]), math.cos(x[2]))
         return self.t, x
-
-
-def truth_columns(world: dict, t: float) -> dict[str, float]:
-    """The true value of each output column at epoch time ``t`` for a world whose target
-    moves around ``world["center"]`` (the train): x, y (m), theta (rad), omega (rad/s),
-    radius (m)."""
-    from hera.nodes.world import truth_at
-
-    s = truth_at(world, t)
-    cx, cy = (float(c) for c in world.get("center", (0.0, 0.0)))
-    dx, dy = s.position[0] - cx, s.position[1] - cy
-    return {
-        "x [m]": s.position[0],
-        "y [m]": s.position[1],
-        "theta [rad]": math.atan2(dy, dx),
-        "omega [rad/s]": s.angular_rate[2],
-        "radius [m]": math.hypot(dx, dy),
-    }

@@ -1,13 +1,12 @@
 """The Pmod NAV measures of the thesis: ``nav``, ``mag`` and ``nav3`` (REFERENCE table).
 
-All read a board through :class:`hera.nodes.driver.NavDriver` (the simulator by default) and
-calibrate once: the result is stored in the replicated args store under
-``calib/<node>/<measure>`` and read back first, so a restarted measure does not recalibrate.
-Measures of one node naming the same ``board`` share one board.
+All read a board through :class:`hera.nodes.driver.NavDriver` (the simulator by default, a
+real driver with the arg ``driver``) and calibrate once: the result is stored in the
+replicated args store under ``calib/<node>/<measure>`` and read back first, so a restarted
+measure does not recalibrate. Measures of one node naming the same ``board`` share one board.
 
-Common args: ``board`` (default "nav"), ``model`` (a :class:`hera.nodes.imu_model.NavModel`
-table), ``seed`` (int), ``truth`` (bool: record the ground truth under ``<run_dir>/truth``),
-``calib_samples`` (int).
+Their arguments are declared (:data:`NAV_ARGS`, ``arguments`` of each class): unknown or
+ill-typed ones are refused before a node starts.
 """
 
 from __future__ import annotations
@@ -16,8 +15,10 @@ import math
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
+from hera.measure import Measure, MeasureContext, Reading
 from hera.nodes import boards
 from hera.nodes import geometry as gm
+from hera.nodes.boards import BOARD_ARGS
 from hera.nodes.calibration import (
     calibrate_mag,
     calibrate_nav,
@@ -27,29 +28,25 @@ from hera.nodes.calibration import (
     rotate_y,
     stored_or_run,
 )
-from hera.nodes.driver import NavDriver, NoReading
-from hera.nodes.sim_nav import SimNavBoard
+from hera.nodes.driver import NavDriver, NoReading, SimulatedBoard
 from hera.nodes.truth import TruthRecorder, want_truth
-from hera.nodes.world import G, State, state_at
-
-from hera.measure import Measure, MeasureContext, Reading
-
-_COMMON_ARGS = frozenset({"board", "model", "seed", "truth", "calib_samples"})
+from hera.nodes.world import G, State
+from hera.schema import BOOL, STR, Setting, Table, number
 
 
-def _check_args(name: str, args: Mapping[str, Any], allowed: frozenset[str]) -> None:
-    unknown = set(args) - allowed
-    if unknown:
-        raise ValueError(
-            f"measure {name!r}: unknown args {sorted(unknown)}; known: {sorted(allowed)}"
-        )
-
-
-def _positive_int(args: Mapping[str, Any], key: str, default: int) -> int:
-    v = args.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-        raise ValueError(f"arg {key!r} must be a positive integer, got {v!r}")
-    return v
+def nav_args(calib_samples: int, *extra: Setting) -> Table:
+    """The arguments of a NAV measure: the board and its calibration (+ ``extra``)."""
+    return Table(
+        "nav args",
+        [
+            Setting("board", STR, "nav", "board name (measures naming one board share it)"),
+            *BOARD_ARGS,
+            Setting(
+                "calib_samples", number(1, integer=True), calib_samples, "samples to calibrate on"
+            ),
+            *extra,
+        ],
+    )
 
 
 def _yaw(q: gm.Quat) -> float:
@@ -60,15 +57,15 @@ def _yaw(q: gm.Quat) -> float:
 class _NavMeasure(Measure):
     """Shared set-up: the board, the truth recorder."""
 
-    extra_args: ClassVar[frozenset[str]] = frozenset()
     truth_columns: ClassVar[tuple[str, ...]] = ()
 
     board: NavDriver
     _truth: TruthRecorder | None = None
 
-    def _setup(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
+    def _setup(self, args: Mapping[str, Any], ctx: MeasureContext) -> Mapping[str, Any]:
+        """Open the board and the truth recorder; return the args with their defaults."""
+        args = self.prepare_args(args)
         super().init(args, ctx)
-        _check_args(ctx.spec.name, args, _COMMON_ARGS | self.extra_args)
         self.board = boards.open_nav(ctx, args)
         self._truth = None
         if want_truth(args, ctx.run_dir):
@@ -81,12 +78,11 @@ class _NavMeasure(Measure):
             )
         elif args.get("truth"):
             ctx.log.warning("truth asked but there is no run directory: not recorded")
+        return args
 
     def _state(self, t: float) -> State | None:
         b = self.board
-        if not isinstance(b, SimNavBoard):
-            return None
-        return state_at(b.scenario, b.epoch, t)
+        return b.truth(t) if isinstance(b, SimulatedBoard) else None
 
     def close(self) -> None:
         if self._truth is not None:
@@ -108,10 +104,11 @@ class Nav(_NavMeasure):
     period = 0.05
     columns = ("a_y [m/s^2]", "g_z [rad/s]")
     truth_columns = ("true a_y [m/s^2]", "true g_z [rad/s]")
+    arguments = nav_args(500)
 
     def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
-        self._setup(args, ctx)
-        n = _positive_int(args, "calib_samples", 500)
+        args = self._setup(args, ctx)
+        n = args["calib_samples"]
         cal = stored_or_run(
             ctx,
             lambda: calibrate_nav(self.board, n),
@@ -156,16 +153,15 @@ class Mag(_NavMeasure):
     name = "mag"
     period = 0.3
     columns = ("heading [rad]",)
-    extra_args = frozenset({"clockwise"})
     truth_columns = ("true heading [rad]",)
+    arguments = nav_args(
+        10, Setting("clockwise", BOOL, False, "the original formula's sign (a compass heading)")
+    )
 
     def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
-        self._setup(args, ctx)
-        clockwise = args.get("clockwise", False)
-        if not isinstance(clockwise, bool):
-            raise ValueError(f"arg 'clockwise' must be true or false, got {clockwise!r}")
-        self.sign = 1.0 if clockwise else -1.0
-        n = _positive_int(args, "calib_samples", 10)
+        args = self._setup(args, ctx)
+        self.sign = 1.0 if args["clockwise"] else -1.0
+        n = args["calib_samples"]
         cal = stored_or_run(
             ctx,
             lambda: calibrate_mag(self.board, n=n),
@@ -176,7 +172,7 @@ class Mag(_NavMeasure):
         self.bias = (float(cal["bias"][0]), float(cal["bias"][1]))
         self.offset = float(cal["offset"])
         b = self.board
-        self._yaw0 = _yaw(b.scenario.rest_motion().orientation) if isinstance(b, SimNavBoard) else 0
+        self._yaw0 = _yaw(b.rest_truth().orientation) if isinstance(b, SimulatedBoard) else 0.0
 
     def measure(self) -> Reading | None:
         try:
@@ -216,9 +212,11 @@ class Nav3(_NavMeasure):
         "mag_z [gauss]",
     )
 
+    arguments = nav_args(300)
+
     def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
-        self._setup(args, ctx)
-        n = _positive_int(args, "calib_samples", 300)
+        args = self._setup(args, ctx)
+        n = args["calib_samples"]
         cal = stored_or_run(
             ctx,
             lambda: calibrate_nav3(self.board, n_gyro=n),

@@ -1,4 +1,4 @@
-"""A measure that publishes one constant value per step (benchmarks, smoke tests)."""
+"""The "beacon" measure: publishes one constant value per step (benchmarks, smoke tests)."""
 
 from __future__ import annotations
 

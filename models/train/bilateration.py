@@ -17,8 +17,7 @@ from __future__ import annotations
 
 import math
 
-from hera.models.beams import in_cone, unit_directions
-
+from hera.models.train.beams import in_cone, unit_directions
 from hera.store import Sample
 
 
@@ -100,6 +99,11 @@ class Bilateration:
             return False
         self._estimate = (sample.t, [x, y])
         return True
+
+    def counters(self) -> dict[str, int]:
+        """Pairs whose circles did not meet (``misses``), solutions outside a beam
+        (``outside``)."""
+        return {"misses": self.misses, "outside": self.outside}
 
     def estimate(self) -> tuple[float, list[float]] | None:
         return self._estimate

@@ -1,0 +1,1 @@
+"""Example cluster specs, shipped inside the package as ``hera.deploy`` (``hera examples``)."""

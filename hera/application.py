@@ -1,0 +1,209 @@
+"""The application interface: what an application tells the runtime, and nothing more.
+
+An *application* bundles what one use of the framework needs beyond the runtime: its
+measures and fusion models, the truth of its simulated world, how to score a run, its plots,
+its rows of the live panel of ``hera up``, and any control verbs it adds. The train ladder
+is one; a user's own package can be another. The runtime finds applications through the
+entry-point group ``hera.apps`` and asks them through this interface only; it never names
+one.
+
+Write one by subclassing :class:`Application`: set :attr:`~Application.name` and
+:attr:`~Application.measures`, and override the methods that apply (every one is optional,
+the defaults say "nothing to add"). Register it in your package's ``pyproject.toml``::
+
+    [project.entry-points."hera.apps"]
+    thermo = "mypkg.app:ThermoApp"
+
+The measures themselves stay ``hera.measures`` entry points; :attr:`Application.measures`
+names the ones that belong to the application (aliases included or not: the runtime
+compares the classes they load). The README's "Write your own application" has a complete
+example.
+
+Data the runtime hands an application:
+
+- a :class:`Series`: one model output of a run (times and values per column), read from the
+  run's CSV logs or a replay;
+- an :class:`Estimate`: the latest estimate of a model on a node (live panel);
+- the world table of the spec (``[world]``) for :meth:`Application.truth`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar, Protocol
+
+import numpy as np
+
+from hera.resources import Resources
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One column of ``hera eval``'s table: ``key`` in the scores, ``label`` and ``unit``
+    for the header (e.g. ``Metric("pos_rmse_cm", "pos RMSE", "cm")``)."""
+
+    key: str
+    label: str
+    unit: str = ""
+
+    @property
+    def header(self) -> str:
+        return f"{self.label} {self.unit}".strip()
+
+
+class Truth(Protocol):
+    """The true value of named quantities at any time of a simulated run."""
+
+    columns: tuple[str, ...]
+
+    def at(self, t: float) -> Mapping[str, float]:
+        """The true value of each column at epoch time ``t`` (s); a column may be absent
+        when it has no meaning at that time."""
+        ...
+
+
+@dataclass(frozen=True)
+class FunctionTruth:
+    """A :class:`Truth` from a function of time: ``fn(t) -> {column: value}``."""
+
+    columns: tuple[str, ...]
+    fn: Callable[[float], Mapping[str, float]]
+
+    def at(self, t: float) -> Mapping[str, float]:
+        return self.fn(t)
+
+
+@dataclass
+class Series:
+    """One model output of a run: ``name`` published by ``node``, its ``columns`` (with
+    units, e.g. ``"x [m]"``), measurement times ``t`` (epoch s, increasing) and ``values``
+    (one row per time). ``measure`` is the measure class that produced it, when known."""
+
+    name: str
+    node: str
+    columns: tuple[str, ...]
+    t: np.ndarray
+    values: np.ndarray
+    measure: type | None = None
+
+    def __post_init__(self) -> None:
+        self.t = np.asarray(self.t, dtype=float).reshape(-1)
+        self.values = np.asarray(self.values, dtype=float).reshape(len(self.t), -1)
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def has(self, *columns: str) -> bool:
+        return all(c in self.columns for c in columns)
+
+    def column(self, col: str) -> np.ndarray:
+        """The values of one column (KeyError naming the columns if absent)."""
+        try:
+            return self.values[:, self.columns.index(col)]
+        except ValueError:
+            raise KeyError(
+                f"{self.name}_{self.node} has no column {col!r}: {self.columns}"
+            ) from None
+
+
+@dataclass(frozen=True)
+class EvalOptions:
+    """How ``hera eval`` scores: errors count ``after`` s past a model's first estimate, and
+    "settled" errors ``settle`` s past it (what a converged model is judged on)."""
+
+    after: float = 3.0
+    settle: float = 10.0
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The latest estimate of model ``name`` on ``node`` at epoch time ``t``: value per
+    column. ``measure`` is the measure class of the model."""
+
+    name: str
+    node: str
+    t: float
+    values: Mapping[str, float]
+    measure: type | None = None
+
+
+@dataclass(frozen=True)
+class Panel:
+    """Rows an application adds to the live view: a ``title``, the column headers and the
+    rows (already formatted cells; the runtime aligns them, right-justified but for the
+    first column)."""
+
+    title: str
+    columns: tuple[str, ...]
+    rows: tuple[tuple[str, ...], ...] = ()
+
+
+@dataclass
+class VerbContext:
+    """What a control verb of an application may use on the node that runs it."""
+
+    node: str
+    cluster: str
+    world: Mapping[str, Any]
+    resources: Resources
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+Verb = Callable[[Mapping[str, Any], VerbContext], Mapping[str, Any]]
+"""A control verb: ``verb(request, ctx) -> reply``; raise ValueError with a clear sentence
+for a bad request (the caller receives ``{"ok": false, "error": ...}``)."""
+
+
+class Application:
+    """Base class of applications (see the module docstring). Every method is optional."""
+
+    name: ClassVar[str] = ""
+    """The application's name (its ``hera.apps`` entry point)."""
+    title: ClassVar[str] = ""
+    """One line saying what it is (``hera apps`` prints it)."""
+    measures: ClassVar[tuple[str, ...]] = ()
+    """Its measures and models, by ``hera.measures`` entry-point name, in the order its
+    results are listed (a ladder's order, say)."""
+    metrics: ClassVar[tuple[Metric, ...]] = ()
+    """The columns it fills in ``hera eval``'s table."""
+
+    def label(self, name: str, measure: type | None) -> str:
+        """How a model output called ``name`` (made by class ``measure``) is labelled in
+        tables and legends."""
+        return name
+
+    def truth(self, world: Mapping[str, Any]) -> Truth | None:
+        """The truth of a run in ``world`` (the spec's ``[world]``), or None when this
+        application cannot tell it (no simulated world of its kind)."""
+        return None
+
+    def score(
+        self, series: Series, truth: Truth | None, options: EvalOptions
+    ) -> Mapping[str, float | None]:
+        """Scores of one of its model outputs, by :attr:`metrics` key (None: not
+        applicable)."""
+        return {}
+
+    def plots(
+        self,
+        series: Sequence[Series],
+        truth: Truth | None,
+        out_dir: Path,
+        options: EvalOptions,
+    ) -> list[Path]:
+        """Write plots of its model outputs into ``out_dir``; return the files written."""
+        return []
+
+    def panel(self, estimates: Sequence[Estimate], truth: Truth | None) -> Panel | None:
+        """Its rows of the live view of ``hera up`` for the latest estimates of its models."""
+        return None
+
+    def verbs(self) -> Mapping[str, Verb]:
+        """Control verbs it adds to every node (``hera/<cluster>/ctl/<node>/<verb>``)."""
+        return {}
+
+    def examples(self) -> Mapping[str, Path]:
+        """Example specs it ships, by name (``hera examples``, ``hera up NAME``)."""
+        return {}

@@ -1,0 +1,187 @@
+"""A node's data path: publishing its samples, taking everyone's into the store.
+
+- :meth:`DataPath.publish` gives each sample of this node's measures the next seq of its
+  (name, node) and puts it on ``data/<name>/<node>``;
+- :meth:`DataPath.on_data` decodes every sample on the bus (:mod:`hera.wire`), offers it to
+  the store (which keeps it only if its seq is newer), records the publish-to-store transit
+  and writes the CSV log when this node logs;
+- :meth:`DataPath.on_seq_query` answers ``seq/<name>/<node>`` queries, so a restarted node
+  continues its seqs (REFERENCE "Core framework").
+
+Bad input (malformed payloads, bad keys, unpublishable values) is rejected, counted by kind
+and never reaches the store.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import deque
+from collections.abc import Mapping
+from typing import Any
+
+import msgpack
+import zenoh
+
+from hera import wire
+from hera.csvlog import CsvLog
+from hera.keys import Keys
+from hera.measure import Reading
+from hera.store import Store
+
+log = logging.getLogger("hera.datapath")
+
+
+class DataPath:
+    """Publishes this node's samples and stores everyone's (see module docstring)."""
+
+    TRANSIT_WINDOW = 4096
+
+    def __init__(
+        self,
+        node: str,
+        keys: Keys,
+        store: Store,
+        csv: CsvLog | None = None,
+        log_names: tuple[str, ...] = (),
+    ) -> None:
+        self.node = node
+        self.keys = keys
+        self.store = store
+        self.csv = csv
+        self.log_names = frozenset(log_names)
+        self.rejected: dict[str, int] = {}
+        self.last_rejection: str | None = None
+        self.transit: dict[str, deque[float]] = {}
+        self._seq: dict[str, int] = {}
+        self._seq_lock = threading.Lock()
+        self._publishers: dict[str, Any] = {}
+        self._session: zenoh.Session | None = None
+        self._handles: list[Any] = []
+
+    def attach(self, session: zenoh.Session) -> None:
+        """Subscribe to every data key of the cluster and answer seq queries."""
+        self._session = session
+        self._handles.append(
+            session.declare_subscriber(f"{self.keys.prefix}/data/**", self.on_data)
+        )
+        self._handles.append(
+            session.declare_queryable(self.keys.seq("*", "*"), self.on_seq_query, complete=True)
+        )
+
+    def close(self) -> None:
+        """Undeclare subscriptions and publishers (before the session closes)."""
+        for h in (*reversed(self._handles), *self._publishers.values()):
+            try:
+                h.undeclare()
+            except Exception as e:  # a closing session may already have dropped them
+                log.debug("undeclare failed: %s", e)
+        self._handles.clear()
+        self._publishers.clear()
+
+    # -- seqs ---------------------------------------------------------------------------
+    def seq(self, name: str) -> int:
+        """The last seq this node published (or recovered) for its measure ``name``."""
+        with self._seq_lock:
+            return self._seq.get(name, 0)
+
+    def adopt_seqs(self, seqs: Mapping[str, Any]) -> None:
+        """Continue after the given seqs (recovered from peers): keep the larger of each."""
+        with self._seq_lock:
+            for name, seq in seqs.items():
+                if (
+                    isinstance(seq, int)
+                    and not isinstance(seq, bool)
+                    and seq > self._seq.get(name, 0)
+                ):
+                    self._seq[name] = seq
+
+    # -- publishing ---------------------------------------------------------------------
+    def publish(self, name: str, reading: Reading, grant: Any = None) -> None:
+        """Publish one sample of this node's measure ``name`` with the next seq."""
+        with self._seq_lock:
+            seq = self._seq.get(name, 0) + 1
+            try:
+                payload = wire.encode(
+                    seq, reading.t, reading.values, (grant.epoch, grant.token) if grant else None
+                )
+            except (wire.WireError, TypeError, ValueError) as e:
+                self.reject("invalid_output", f"measure {name} returned unpublishable values: {e}")
+                return
+            self._seq[name] = seq
+            pub = self._publishers.get(name)
+            if pub is None:
+                pub = self._session.declare_publisher(self.keys.data(name, self.node))
+                self._publishers[name] = pub
+        pub.put(payload)
+
+    # -- receiving ----------------------------------------------------------------------
+    def on_data(self, sample: zenoh.Sample) -> None:
+        """Decode, check and store one sample from the bus."""
+        key = str(sample.key_expr)
+        try:
+            name, node = self.keys.parse_data(key)
+            msg = wire.decode(sample.payload.to_bytes())
+        except wire.WireError as e:
+            self.reject("oversized" if "too large" in str(e) else "malformed", f"{key}: {e}")
+            return
+        except ValueError as e:
+            self.reject("bad_key", str(e))
+            return
+        if not self.store.offer(name, node, msg):
+            return
+        held = self.store.get_one(name, node)
+        # publish-to-store transit on the wall clock (exact on one host; needs NTP across)
+        window = self.transit.get(node)
+        if window is None:
+            window = self.transit[node] = deque(maxlen=self.TRANSIT_WINDOW)
+        window.append(held.arrival_wall - held.t)
+        if self.csv is not None and (not self.log_names or name in self.log_names):
+            self.csv.write(held)
+
+    def reject(self, kind: str, message: str) -> None:
+        """Count one rejected input of ``kind`` (logged the first times, then every 1000)."""
+        self.rejected[kind] = self.rejected.get(kind, 0) + 1
+        self.last_rejection = message
+        if self.rejected[kind] <= 3 or self.rejected[kind] % 1000 == 0:
+            log.warning("rejected input (%s, %d so far): %s", kind, self.rejected[kind], message)
+
+    def on_seq_query(self, query: zenoh.Query) -> None:
+        """Answer ``seq/<any>/<node>`` with every seq this node knows of ``<node>``."""
+        with query:
+            head = self.keys.seq("", "")
+            parts = str(query.key_expr)[len(head) - 1 :].split("/")
+            node = parts[-1] if len(parts) == 2 else None
+            if node is None or "*" in node:
+                return
+            seqs = self.store.seqs_of_node(node)
+            if node == self.node:
+                with self._seq_lock:
+                    for k, v in self._seq.items():
+                        seqs[k] = max(v, seqs.get(k, 0))
+            query.reply(self.keys.seq("all", node), msgpack.packb(seqs))
+
+    def recover_seqs(self, session: zenoh.Session, timeout: float) -> None:
+        """Ask live peers for the latest seqs of this node's measures and adopt them."""
+        from hera.bus import query_all
+
+        for sample in query_all(session, self.keys.seq("*", self.node), timeout):
+            try:
+                seqs = msgpack.unpackb(sample.payload.to_bytes(), raw=False)
+                if not isinstance(seqs, dict):
+                    raise ValueError(f"expected a map, got {type(seqs).__name__}")
+                self.adopt_seqs(seqs)
+            except Exception as e:  # a peer's bad reply must not stop this node's start
+                log.warning("ignoring malformed seq reply: %s", e)
+
+    def percentiles(self) -> dict[str, dict[str, float]]:
+        """Publish-to-store transit per sender (ms): p50, p99, max, n."""
+        return {n: _percentiles(w) for n, w in list(self.transit.items())}
+
+
+def _percentiles(window: deque[float]) -> dict[str, float]:
+    xs = sorted(window)
+    if not xs:
+        return {}
+    pick = lambda q: round(xs[min(len(xs) - 1, int(q * len(xs)))] * 1e3, 4)  # noqa: E731
+    return {"p50": pick(0.5), "p99": pick(0.99), "max": round(xs[-1] * 1e3, 4), "n": len(xs)}

@@ -1,0 +1,76 @@
+"""The estimates part of the live view of ``hera up``: each application's panel.
+
+The runtime collects the latest estimate of every fusion model of the spec (from one node's
+store) and asks each model's application for its :class:`~hera.application.Panel`; models
+of no application get a plain panel of their values. Panels are data; :func:`render_panel`
+lays one out as aligned text.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from hera.application import Estimate, Panel
+from hera.plugins import AppIndex
+
+
+def estimates_panels(
+    models: Mapping[str, type],
+    samples: Sequence[Mapping[str, Any]],
+    world: Mapping[str, Any],
+    index: AppIndex,
+) -> list[Panel]:
+    """The panels of the latest estimates in ``samples`` (the ``store`` control verb's
+    samples: name, node, t, values) of the models ``models`` (publication name -> measure
+    class)."""
+    by_app: dict[Any, list[Estimate]] = defaultdict(list)
+    for s in samples:
+        cls = models.get(s["name"])
+        if cls is None:
+            continue
+        cols = tuple(getattr(cls, "columns", ())) or tuple(
+            f"v{i + 1}" for i in range(len(s["values"]))
+        )
+        values = dict(zip(cols, s["values"], strict=False))
+        est = Estimate(s["name"], s["node"], float(s["t"]), values, cls)
+        by_app[index.app_of(cls)].append(est)
+    panels = []
+    for app, estimates in by_app.items():
+        estimates.sort(key=lambda e: (*index.rank(e.measure), e.name, e.node))
+        panel = app.panel(estimates, app.truth(world)) if app is not None else None
+        panels.append(panel or plain_panel(estimates))
+    return panels
+
+
+def plain_panel(estimates: Sequence[Estimate]) -> Panel:
+    """A panel of latest values for models no application describes."""
+    rows = tuple(
+        (
+            e.name,
+            e.node,
+            "  ".join(f"{k}={v:.4g}" for k, v in e.values.items()),
+        )
+        for e in estimates
+    )
+    return Panel("estimates", ("model", "node", "values"), rows)
+
+
+def render_panel(panel: Panel) -> str:
+    """The panel as aligned text: its title, a header line and its rows (first column
+    left-aligned, the others right-aligned)."""
+    table = [panel.columns, *panel.rows]
+    widths = [
+        max(len(str(row[i])) if i < len(row) else 0 for row in table)
+        for i in range(len(panel.columns))
+    ]
+
+    def line(row: Sequence[str]) -> str:
+        cells = [
+            str(c).ljust(w) if i == 0 else str(c).rjust(w)
+            for i, (c, w) in enumerate(zip(row, widths, strict=False))
+        ]
+        return " ".join(cells).rstrip()
+
+    return "\n".join([f"{panel.title}:", *(line(r) for r in table)])
