@@ -1,5 +1,6 @@
 """Hera for Python: distributed, fault-tolerant sensor fusion on Eclipse Zenoh."""
 
+import sys as _sys
 from pathlib import Path as _Path
 
 __version__ = "0.1.0"
@@ -16,10 +17,14 @@ def _check_checkout() -> None:
     from importlib.util import find_spec
 
     if find_spec("hera.models") is None:
-        raise ImportError(
+        message = (
             f"hera is imported from the source checkout {root} without an editable install: "
             f"run 'pip install -e {root}' (or run hera from another folder)"
         )
+        if _sys.argv[:1] == ["-m"]:  # `python -m hera`: a sentence, not a traceback
+            print(f"hera: {message}", file=_sys.stderr)
+            raise SystemExit(2)
+        raise ImportError(message)
 
 
 _check_checkout()

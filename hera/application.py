@@ -200,6 +200,12 @@ class Application:
         """Its rows of the live view of ``hera up`` for the latest estimates of its models."""
         return None
 
+    def check_world(self, world: Mapping[str, Any]) -> list[str]:
+        """Problems with the spec's ``[world]`` table for this application's measures (one
+        sentence each; checked before a spec starts, for every application whose measures
+        the spec uses)."""
+        return []
+
     def verbs(self) -> Mapping[str, Verb]:
         """Control verbs it adds to every node (``hera/<cluster>/ctl/<node>/<verb>``)."""
         return {}

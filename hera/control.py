@@ -52,8 +52,9 @@ class ControlPlane:
                 if not isinstance(request, dict):
                     raise ValueError("a control request must be a JSON object")
                 reply = {"ok": True, **self.handle(verb, request)}
-            except (ValueError, KeyError, TypeError, LookupError) as e:
-                reply = {"ok": False, "error": str(e).strip("'\"")}
+            except (ValueError, TypeError, LookupError) as e:
+                text = e.args[0] if isinstance(e, KeyError) and e.args else e
+                reply = {"ok": False, "error": str(text)}
             except Exception as e:  # a verb's bug must not take the node down
                 log.exception("control verb %s failed", verb)
                 reply = {"ok": False, "error": f"{verb} failed: {type(e).__name__}: {e}"}

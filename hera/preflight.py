@@ -2,13 +2,14 @@
 
 :func:`check_spec` loads every measure the spec uses and checks its arguments against the
 measure's declaration (a fusion model's settings against the model's), and that every
-synchronised measure's group is hosted by some node. Every problem is reported at once,
+synchronised measure's group is hosted by some node, and asks the applications whose
+measures the spec uses to check its ``[world]`` table. Every problem is reported at once,
 one sentence each naming the file, the measure and the key (:class:`hera.spec.SpecError`).
 """
 
 from __future__ import annotations
 
-from hera.plugins import PluginError, find_measure
+from hera.plugins import AppIndex, PluginError, find_measure
 from hera.spec import ClusterSpec, SpecError
 
 
@@ -16,6 +17,8 @@ def spec_problems(spec: ClusterSpec) -> list[str]:
     """Every problem :func:`check_spec` would report, in spec order, without repeats."""
     problems: list[str] = []
     groups = spec.sync_groups()
+    index = AppIndex()
+    apps = {}
     for node, m in spec.measures():
         where = f"{spec.source}: measure {m.name!r} of node {node!r}"
         try:
@@ -23,6 +26,9 @@ def spec_problems(spec: ClusterSpec) -> list[str]:
         except (LookupError, TypeError, PluginError) as e:
             problems.append(f"{where}: {e}")
             continue
+        app = index.app_of(cls)
+        if app is not None:
+            apps.setdefault(app.name, app)
         problems.extend(cls.check_args(m.args, f"{where}: args"))
         resolved = m.resolve(cls)
         if resolved.sync and resolved.group not in groups:
@@ -30,6 +36,8 @@ def spec_problems(spec: ClusterSpec) -> list[str]:
                 f"{where}: it is synchronised (sync = true) in group {resolved.group!r}, but "
                 f"no node hosts that group: add {resolved.group!r} to some node's sync_hosts"
             )
+    for app in apps.values():
+        problems.extend(f"{spec.source}: [world]: {p}" for p in app.check_world(spec.world))
     return list(dict.fromkeys(problems))
 
 

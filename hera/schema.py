@@ -263,7 +263,9 @@ class Table:
         found.extend(self.unknown(raw, where))
         out: dict[str, Any] = {}
         for s in self.settings:
-            if s.key in raw:
+            if s.key in raw and raw[s.key] is None and s.default is None:
+                out[s.target] = None  # "not set", as parsed before (parsing is idempotent)
+            elif s.key in raw:
                 try:
                     out[s.target] = s.kind.convert(raw[s.key])
                 except ValueError as e:

@@ -137,7 +137,7 @@ class ClusterSpec:
         table="supervisor",
     )
     intensity: int = setting(
-        10, number(1, integer=True), "at most this many restarts ...", table="supervisor"
+        10, number(0, integer=True), "at most this many restarts ...", table="supervisor"
     )
     intensity_period: float = setting(
         60.0,

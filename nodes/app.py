@@ -7,6 +7,7 @@ like any application's and never imports the simulator.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 from hera.application import Application, Verb
 
@@ -17,6 +18,23 @@ class Simulator(Application):
     name = "simulator"
     title = "simulated boards: board faults through the 'board' control verb"
     measures = ("nav", "mag", "nav3", "sonar")
+
+    def check_world(self, world: Mapping[str, Any]) -> list[str]:
+        """The scenario, its keys and the environment must be ones the simulator knows."""
+        from hera.nodes.world import environment, epoch_of, make_scenario
+
+        try:
+            make_scenario(world)
+            environment(world)
+            epoch_of(world)
+        except ValueError as e:
+            return [str(e)]
+        sonars = world.get("sonars", {})
+        if not isinstance(sonars, Mapping) or not all(
+            isinstance(v, Mapping) for v in sonars.values()
+        ):
+            return ["world 'sonars' must be a table of <node> = {position, direction}"]
+        return []
 
     def verbs(self) -> Mapping[str, Verb]:
         from hera.nodes.faults import board_verb

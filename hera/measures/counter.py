@@ -13,6 +13,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from hera.measure import Measure, MeasureContext
+from hera.schema import STR, Setting, Table, number
 
 
 class Counter(Measure):
@@ -21,12 +22,23 @@ class Counter(Measure):
     name = "obs"
     period = 0.1
     columns = ("alive observers [count]",)
+    arguments = Table(
+        "counter args",
+        [
+            Setting("prefix", STR, "obs", "count publications whose name starts with this"),
+            Setting(
+                "fresh_cycles", number(above=0), 1.5, "recently sent: within this many periods"
+            ),
+            Setting("min_age_cycles", number(0), 2.0, "and sending without a gap this many"),
+        ],
+    )
 
     def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
+        args = self.prepare_args(args)
         super().init(args, ctx)
-        self.prefix = str(args.get("prefix", "obs"))
-        self.fresh_cycles = float(args.get("fresh_cycles", 1.5))
-        self.min_age_cycles = float(args.get("min_age_cycles", 2.0))
+        self.prefix = args["prefix"]
+        self.fresh_cycles = args["fresh_cycles"]
+        self.min_age_cycles = args["min_age_cycles"]
         self._streak: dict[tuple[str, str], float] = {}
 
     def measure(self) -> list[float]:

@@ -1,16 +1,26 @@
-"""``pip install .`` (not editable) into a fresh venv gives a working ``hera`` under one
-namespace: nodes/, models/ and sync/ become hera.nodes, hera.models, hera.sync."""
+"""The package as a user installs it: ``pip install .`` (not editable) into a fresh venv,
+next to an out-of-tree application (``tests/plugin_app``, built and installed as its own
+wheel), used from outside and from inside the checkout.
+
+One venv is built for the module (two wheels, their dependencies); the cluster runs are
+short (a few seconds each).
+"""
 
 from __future__ import annotations
 
+import json
+import os
 import subprocess
 import sys
 import venv
 from pathlib import Path
 
+import pytest
+
 from hera.spec import tomllib
 
 ROOT = Path(__file__).resolve().parents[2]
+PLUGIN = ROOT / "tests" / "plugin_app"
 
 
 def test_every_source_package_is_listed_in_pyproject():
@@ -18,63 +28,128 @@ def test_every_source_package_is_listed_in_pyproject():
     listed = set(cfg["packages"])
     mapping = {src: dst for dst, src in cfg["package-dir"].items()}
     found = set()
-    for top in ("hera", "nodes", "models", "sync"):
+    for top in ("hera", "nodes", "models", "sync", "deploy"):
         for init in (ROOT / top).rglob("__init__.py"):
             rel = init.parent.relative_to(ROOT / top).parts
             found.add(".".join((mapping[top], *rel)))
     assert found == listed, f"add to / remove from [tool.setuptools] packages: {found ^ listed}"
 
 
-def test_wheel_installs_into_a_fresh_venv(tmp_path):
-    wheels = tmp_path / "wheels"
+def _wheel(src: Path, out: Path) -> Path:
     subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "wheel",
-            "--no-deps",
-            "--no-build-isolation",
-            "-q",
-            "-w",
-            str(wheels),
-            str(ROOT),
-        ],
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q"]
+        + ["-w", str(out), str(src)],
         check=True,
         capture_output=True,
         timeout=300,
     )
-    wheel = next(wheels.glob("hera_fusion-*.whl"))
-    env_dir = tmp_path / "venv"
+    return out
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory) -> Path:
+    """A fresh venv with hera-fusion and hera-thermo installed from wheels; its bin dir."""
+    tmp = tmp_path_factory.mktemp("install")
+    wheels = _wheel(ROOT, tmp / "wheels")
+    _wheel(PLUGIN, wheels)
+    env_dir = tmp / "venv"
     venv.create(env_dir, with_pip=True)
-    py = env_dir / "bin" / "python"
-    subprocess.run(
-        [py, "-m", "pip", "install", "-q", str(wheel)], check=True, capture_output=True, timeout=600
+    pip = [str(env_dir / "bin" / "python"), "-m", "pip", "install", "-q"]
+    hera_whl = next(wheels.glob("hera_fusion-*.whl"))
+    thermo_whl = next(wheels.glob("hera_thermo-*.whl"))
+    out = subprocess.run(
+        [*pip, str(hera_whl), str(thermo_whl)], capture_output=True, text=True, timeout=900
     )
+    assert out.returncode == 0, out.stderr[-3000:]
+    return env_dir / "bin"
+
+
+def _run(bin_dir: Path, *cmd: str, cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    env["PATH"] = f"{bin_dir}{os.pathsep}{env.get('PATH', '')}"
+    env["HERA_REGISTRY"] = str(cwd / "registry")
+    return subprocess.run(
+        [str(bin_dir / cmd[0]), *cmd[1:]],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def test_one_namespace_and_the_plugins_are_found(installed, tmp_path):
     probe = (
-        "import importlib.util, hera, hera.nodes, hera.models, hera.sync, hera.estimation\n"
+        "import importlib.util, hera, hera.nodes, hera.models, hera.sync, hera.deploy\n"
         "assert all(importlib.util.find_spec(m) is None for m in ('nodes', 'models', 'sync'))\n"
         "print(hera.nodes.__file__)\n"
     )
-    out = subprocess.run(
-        [py, "-c", probe], cwd=tmp_path, capture_output=True, text=True, timeout=120
-    )
+    out = _run(installed, "python", "-c", probe, cwd=tmp_path)
     assert out.returncode == 0, out.stderr
-    assert str(env_dir) in out.stdout and str(ROOT) not in out.stdout
-    measures = subprocess.run(
-        [env_dir / "bin" / "hera", "measures"],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
+    assert str(installed.parent) in out.stdout and str(ROOT) not in out.stdout
+    measures = _run(installed, "hera", "measures", cwd=tmp_path)
+    assert measures.returncode == 0, measures.stderr
+    for name in ("counter", "track_mag", "sonar", "thermo", "thermo_filter"):
+        assert f"\n{name} " in "\n" + measures.stdout, name
+    apps = _run(installed, "hera", "apps", cwd=tmp_path).stdout
+    assert all(f"{a} " in apps for a in ("train", "simulator", "thermo")), apps
+    examples = _run(installed, "hera", "examples", cwd=tmp_path).stdout
+    assert all(f"{e} " in examples for e in ("train", "observers", "thermo")), examples
+
+
+def test_python_m_hera_in_the_checkout_says_what_to_run(installed):
+    """The checkout's hera/ shadows the installed package when run from the repo root with
+    ``python -m``: it must say so in one sentence rather than fail later."""
+    out = _run(installed, "python", "-m", "hera", "measures", cwd=ROOT)
+    assert out.returncode == 2
+    assert f"without an editable install: run 'pip install -e {ROOT}'" in out.stderr
+    assert "Traceback" not in out.stderr, out.stderr
+
+
+def test_hera_up_from_the_checkout_runs_the_installed_package(installed, tmp_path):
+    """The README's main command runs ``hera up deploy/...`` in the checkout after a plain
+    ``pip install .``: its node processes must not pick up the checkout's sources."""
+    run = tmp_path / "run"
+    out = _run(
+        installed,
+        "hera",
+        "up",
+        "deploy/observers.toml",
+        "--duration",
+        "4",
+        "--run-dir",
+        str(run),
+        cwd=ROOT,
     )
-    assert measures.returncode == 0 and "counter" in measures.stdout
-    # hera up starts nodes with `python -m hera`, which puts the current folder first on
-    # sys.path: from the repo root the source hera/ is found before the installed one and
-    # must still reach hera.models, hera.nodes and hera.sync
-    load = "from hera.plugins import find_measure as f; print(f('track_mag'), f('sonar'))"
-    from_root = subprocess.run(
-        [py, "-c", load], cwd=ROOT, capture_output=True, text=True, timeout=120
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
+    assert "5/5 nodes answering" in out.stdout
+    logs = "".join(p.read_text() for p in (run / "logs").glob("*.log"))
+    assert "Error" not in logs and "exited with code" not in out.stdout, logs[-2000:]
+    assert len(list((run / "measures").glob("obs*_n*.csv"))) == 20
+
+
+def test_an_out_of_tree_application_runs_scores_and_replays(installed, tmp_path):
+    run = tmp_path / "run"
+    up = _run(
+        installed, "hera", "up", "thermo", "--duration", "8", "--run-dir", str(run), cwd=tmp_path
     )
-    assert from_root.returncode == 0, from_root.stderr[-2000:]
-    assert "TrackMag" in from_root.stdout and "Sonar" in from_root.stdout
+    assert up.returncode == 0, up.stdout[-2000:] + up.stderr[-2000:]
+    assert "thermo:" in up.stdout and "degC" in up.stdout  # its live panel
+    ev = _run(installed, "hera", "eval", str(run), "--json", cwd=tmp_path)
+    assert ev.returncode == 0, ev.stderr
+    rows = {(r["model"], r["node"]): r for r in json.loads(ev.stdout)}
+    assert set(rows) == {("thermo_filter", "sensor"), ("thermo_filter", "desk")}
+    for r in rows.values():
+        assert r["application"] == "thermo" and r["estimates"] > 40
+        assert r["rmse_degc"] < 0.25  # sensor noise 0.3 degC: the filter does better
+    # plots are the application's too; this install has no matplotlib, and says so
+    assert "plots skipped: plots need matplotlib: pip install 'hera-fusion[plot]'" in ev.stderr
+    rp = _run(installed, "hera", "replay", str(run), "--out", str(tmp_path / "again"), cwd=tmp_path)
+    assert rp.returncode == 0, rp.stderr
+    counters = json.loads(
+        (tmp_path / "again" / "measures" / "thermo_filter_replay.counters.json").read_text()
+    )
+    assert counters == {"rejected": 0}
+    again = _run(installed, "hera", "eval", str(tmp_path / "again"), "--json", cwd=tmp_path)
+    (row,) = json.loads(again.stdout)
+    assert row["application"] == "thermo" and row["rmse_degc"] < 0.25

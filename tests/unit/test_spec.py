@@ -147,3 +147,11 @@ def test_count_expands_names_and_base_port_assigns_ports():
     assert [m.name for m in spec.node("b").measures] == ["o1", "o2", "o3"]
     assert spec.node("a").measures == ()
     assert [n.port for n in spec.nodes] == [7000, 7001]
+
+
+def test_parsing_declared_arguments_twice_gives_the_same():
+    from hera.nodes.measures.sonar import Sonar
+
+    once = Sonar.prepare_args({"max_range": 3})
+    assert once["seed"] is None and once["crosstalk"] is True
+    assert Sonar.prepare_args(once) == once

@@ -1,0 +1,152 @@
+"""Bad specs, arguments and command lines: one clear sentence per problem naming the file,
+the table and the key, exit code 2, no traceback, and nothing started."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from harness import cluster_env
+
+ROOT = Path(__file__).resolve().parents[2]
+HEAD = '[cluster]\nname = "e"\n[[nodes]]\nname = "a"\n'
+TRAIN_MODEL = '[[nodes.measures]]\nuse = "track_radius"\nargs = { model = { %s } }\n'
+
+
+def hera(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "hera", *args],
+        env=cluster_env(tmp_path),
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
+
+
+CASES = [
+    (
+        HEAD + '[[nodes.measures]]\nuse = "no_such_measure"\n',
+        ["measure 'no_such_measure' of node 'a': unknown measure 'no_such_measure'; known "],
+    ),
+    (
+        HEAD + TRAIN_MODEL % "radius_m = 0.6",
+        [
+            "measure 'track_radius' of node 'a': args: model: unknown setting 'radius_m' (did "
+            "you mean 'radius'?); known settings: radius, center,"
+        ],
+    ),
+    (
+        HEAD + '[[nodes.measures]]\nuse = "counter"\nargs = { prefxi = "obs" }\n',
+        [
+            "measure 'counter' of node 'a': args: unknown key 'prefxi' (did you mean "
+            "'prefix'?); known keys: prefix, fresh_cycles, min_age_cycles"
+        ],
+    ),
+    (
+        HEAD + '[[nodes.measures]]\nuse = "sonar"\n',
+        [
+            "measure 'sonar' of node 'a': it is synchronised (sync = true) in group 'sonar', "
+            "but no node hosts that group: add 'sonar' to some node's sync_hosts"
+        ],
+    ),
+    (
+        '[cluster]\nname = "e"\nbase_prot = 7000\n[[nodes]]\nnmae = "a"\n',
+        [
+            "[cluster]: unknown key 'base_prot' (did you mean 'base_port'?); known keys: name, "
+            "host, base_port, lease_ms, sync_lease_ms, estimation_backend",
+            "[[nodes]] #1: unknown key 'nmae' (did you mean 'name'?); known keys: name, port, "
+            "sync_hosts, measures",
+            "[[nodes]] #1: name is required (node name, the `<node>` of its keys)",
+        ],
+    ),
+    (
+        "",
+        [
+            "[cluster]: name is required (cluster name: the key prefix `hera/<name>/`)",
+            "[[nodes]]: a spec needs at least one [[nodes]] entry",
+        ],
+    ),
+    ("[cluster\n", ["invalid TOML: "]),
+    (
+        HEAD + '[world]\nscenario = "train"\nradius_m = 0.6\n[[nodes.measures]]\nuse = "nav"\n',
+        ["[world]: unknown world keys for scenario 'train': ['radius_m']; allowed: "],
+    ),
+]
+
+
+@pytest.mark.parametrize(("text", "problems"), CASES)
+@pytest.mark.parametrize("command", ["up", "node"])
+def test_a_bad_spec_is_refused_before_anything_starts(tmp_path, command, text, problems):
+    spec = tmp_path / "bad.toml"
+    spec.write_text(text)
+    args = ["--node", "a"] if command == "node" else ["--run-dir", str(tmp_path / "run")]
+    out = hera(tmp_path, command, str(spec), *args)
+    assert out.returncode == 2, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == len(problems), out.stderr
+    for line, problem in zip(lines, problems, strict=True):
+        assert line.startswith(f"hera {command}: {spec}: ") and problem in line, line
+    assert "Traceback" not in out.stderr
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_binary_or_missing_spec_is_one_sentence(tmp_path):
+    blob = tmp_path / "blob.toml"
+    blob.write_bytes(b"\x81\x00\xff")
+    out = hera(tmp_path, "up", str(blob))
+    assert out.returncode == 2
+    assert out.stderr == f"hera up: {blob}: not a text file (a spec is TOML)\n"
+    out = hera(tmp_path, "up", "nosuch")
+    assert out.returncode == 2
+    assert out.stderr.startswith("hera up: no spec file 'nosuch' and no example of that name")
+
+
+def test_replay_resolves_aliases_and_refuses_unknown_settings(tmp_path):
+    """``--models e7`` finds the model declared ``use = "track_gyro"`` (its alias)."""
+    rec = tmp_path / "rec" / "measures"
+    rec.mkdir(parents=True)
+    (rec / "nav_n.csv").write_text(
+        "".join(f"{i},{1000.0 + 10 * i},0.4,0.84\n" for i in range(1, 200))
+    )
+    out = hera(tmp_path, "replay", str(rec.parent), "--out", str(tmp_path / "o"), "--spec", "train")
+    assert out.returncode == 0, out.stderr
+    out = hera(
+        tmp_path,
+        "replay",
+        str(rec.parent),
+        "--out",
+        str(tmp_path / "o7"),
+        "--spec",
+        "deploy/train.toml",
+        "--models",
+        "e7",
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith("track_gyro ")  # the spec's model and its settings
+    bad = tmp_path / "bad.toml"
+    bad.write_text(HEAD + TRAIN_MODEL % "radius_m = 0.6")
+    out = hera(
+        tmp_path, "replay", str(rec.parent), "--out", str(tmp_path / "x"), "--spec", str(bad)
+    )
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert "model: unknown setting 'radius_m' (did you mean 'radius'?)" in out.stderr
+    out = hera(tmp_path, "replay", str(rec.parent), "--out", str(tmp_path / "y"), "--models", "e77")
+    assert out.returncode == 2
+    assert out.stderr.startswith("hera replay: unknown measure 'e77' (did you mean 'e7'?)")
+
+
+def test_an_unknown_control_verb_lists_the_runtime_and_application_verbs():
+    from types import SimpleNamespace
+
+    from hera.control import ControlPlane
+
+    plane = ControlPlane(SimpleNamespace(name="a"))
+    with pytest.raises(ValueError) as e:
+        plane.handle("bored", {})
+    assert str(e.value) == (
+        "unknown control verb 'bored': use status, start, stop, inject, args, store, "
+        "shutdown, board"
+    )
