@@ -4,7 +4,9 @@ Every node process builds the same scenario from the spec's ``[world]`` table (`
 and evaluates it at ``tau = t - epoch`` (``t`` epoch seconds, ``epoch`` shared through the
 spec), so all processes agree on the truth without talking.
 
-World table keys common to every scenario:
+Scenarios are registered by name (:func:`register_scenario`: the world keys each takes and a
+builder); an application's own scenarios live in its own module, listed in
+:data:`EXTRA_SCENARIOS`. World table keys common to every scenario:
 
 - ``scenario``: one of :data:`SCENARIOS` (default ``"still"``);
 - ``epoch``: epoch seconds of ``tau = 0`` (the launcher fills it with the cluster start);
@@ -32,7 +34,7 @@ Scenario parameters (all optional, SI units, angles in rad unless the key says `
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -418,17 +420,6 @@ class Shaking(Scenario):
         return (SonarMount((p[0], p[1] - 1.0, p[2]), (0.0, 1.0, 0.0)),)
 
 
-SCENARIOS = (
-    "still",
-    "train",
-    "rail",
-    "hand",
-    "target3d",
-    "rotation_slow",
-    "rotation_fast",
-    "shaking",
-)
-
 _COMMON = {
     "scenario",
     "epoch",
@@ -444,9 +435,11 @@ _COMMON = {
     "sea_level_hpa",
     "sonars",
 }
+"""World keys every scenario accepts (see the module docstring)."""
 
 
-def _f(world: Mapping[str, Any], key: str, default: float) -> float:
+def number(world: Mapping[str, Any], key: str, default: float) -> float:
+    """World key ``key`` as a finite number (ValueError naming the key otherwise)."""
     value = world.get(key, default)
     try:
         out = float(value)
@@ -457,7 +450,8 @@ def _f(world: Mapping[str, Any], key: str, default: float) -> float:
     return out
 
 
-def _v(world: Mapping[str, Any], key: str, default: tuple[float, ...]) -> tuple[float, ...]:
+def vector(world: Mapping[str, Any], key: str, default: tuple[float, ...]) -> tuple[float, ...]:
+    """World key ``key`` as a list of as many numbers as ``default`` has."""
     value = world.get(key, default)
     try:
         out = tuple(float(x) for x in value)
@@ -468,65 +462,126 @@ def _v(world: Mapping[str, Any], key: str, default: tuple[float, ...]) -> tuple[
     return out
 
 
-_PARAMS: dict[str, set[str]] = {
-    "still": {"position", "yaw"},
-    "train": {"center", "radius", "omega", "phase", "height"},
-    "rail": {"start", "axis", "length", "period"},
-    "hand": {"center", "period", "amplitude"},
-    "target3d": {"center", "amplitude", "period"},
-    "rotation_slow": {"duration", "rest", "axis", "position"},
-    "rotation_fast": {"duration", "rest", "axis", "position"},
-    "shaking": {"position", "amplitude", "frequency"},
-}
+_f, _v = number, vector
 
 
-def make_scenario(world: Mapping[str, Any]) -> Scenario:
-    """Build the scenario a ``[world]`` table describes; ValueError on unknown names/keys."""
-    kind = world.get("scenario", "still")
-    if kind not in _PARAMS:
-        raise ValueError(f"unknown world scenario {kind!r}; choose one of {SCENARIOS}")
-    unknown = set(world) - _COMMON - _PARAMS[kind]
-    if unknown:
-        raise ValueError(
-            f"unknown world keys for scenario {kind!r}: {sorted(unknown)}; "
-            f"allowed: {sorted(_PARAMS[kind] | _COMMON)}"
-        )
-    w = world
-    sc: Scenario
-    if kind == "still":
-        sc = Still(_v(w, "position", ZERO), _f(w, "yaw", 0.0))  # type: ignore[arg-type]
-    elif kind == "train":
-        sc = Train(
-            _v(w, "center", (0.0, 0.0)),  # type: ignore[arg-type]
-            _f(w, "radius", 0.6),
-            _f(w, "omega", 0.84),
-            _f(w, "phase", 0.0),
-            _f(w, "height", 0.0),
-        )
-    elif kind == "rail":
-        sc = Rail(
-            _v(w, "start", (0.5, 0.0, 0.0)),  # type: ignore[arg-type]
-            _v(w, "axis", (1.0, 0.0, 0.0)),  # type: ignore[arg-type]
-            _f(w, "length", 1.1),
-            _f(w, "period", 8.0),
-        )
-    elif kind == "hand":
-        sc = Hand(_v(w, "center", ZERO), _f(w, "period", 1.25), _f(w, "amplitude", 4.0))  # type: ignore[arg-type]
-    elif kind == "target3d":
-        sc = Target3D(
-            _v(w, "center", (1.0, 1.0, 1.0)),  # type: ignore[arg-type]
-            _f(w, "amplitude", 0.5),
-            _f(w, "period", 6.0),
-        )
-    elif kind in ("rotation_slow", "rotation_fast"):
-        sc = Rotation(
+@dataclass(frozen=True)
+class ScenarioKind:
+    """A registered scenario: the world keys it takes and how it is built from them."""
+
+    name: str
+    params: frozenset[str]
+    build: Callable[[Mapping[str, Any]], Scenario]
+
+
+_REGISTRY: dict[str, ScenarioKind] = {}
+EXTRA_SCENARIOS: tuple[str, ...] = ()
+"""Modules defining more scenarios (each calls :func:`register_scenario` when imported);
+imported on first use of the registry. An application's simulated world adds its module
+here."""
+
+
+def register_scenario(
+    name: str, params: set[str] | frozenset[str], build: Callable[[Mapping[str, Any]], Scenario]
+) -> None:
+    """Make scenario ``name`` (its own world keys ``params``) known to :func:`make_scenario`."""
+    if name in _REGISTRY:
+        raise ValueError(f"scenario {name!r} is registered twice")
+    _REGISTRY[name] = ScenarioKind(name, frozenset(params), build)
+
+
+def scenarios() -> dict[str, ScenarioKind]:
+    """Every registered scenario, by name."""
+    import importlib
+
+    for module in EXTRA_SCENARIOS:
+        importlib.import_module(module)
+    return dict(_REGISTRY)
+
+
+def _rotation(kind: str) -> Callable[[Mapping[str, Any]], Scenario]:
+    def build(w: Mapping[str, Any]) -> Scenario:
+        return Rotation(
             _f(w, "duration", 12.0 if kind == "rotation_slow" else 2.0),
             _f(w, "rest", 2.0),
             _v(w, "axis", (0.0, 0.0, 1.0)),  # type: ignore[arg-type]
             _v(w, "position", ZERO),  # type: ignore[arg-type]
         )
-    else:
-        sc = Shaking(_v(w, "position", ZERO), _f(w, "amplitude", 0.03), _f(w, "frequency", 3.0))  # type: ignore[arg-type]
+
+    return build
+
+
+register_scenario(
+    "still",
+    {"position", "yaw"},
+    lambda w: Still(_v(w, "position", ZERO), _f(w, "yaw", 0.0)),  # type: ignore[arg-type]
+)
+register_scenario(
+    "train",
+    {"center", "radius", "omega", "phase", "height"},
+    lambda w: Train(
+        _v(w, "center", (0.0, 0.0)),  # type: ignore[arg-type]
+        _f(w, "radius", 0.6),
+        _f(w, "omega", 0.84),
+        _f(w, "phase", 0.0),
+        _f(w, "height", 0.0),
+    ),
+)
+register_scenario(
+    "rail",
+    {"start", "axis", "length", "period"},
+    lambda w: Rail(
+        _v(w, "start", (0.5, 0.0, 0.0)),  # type: ignore[arg-type]
+        _v(w, "axis", (1.0, 0.0, 0.0)),  # type: ignore[arg-type]
+        _f(w, "length", 1.1),
+        _f(w, "period", 8.0),
+    ),
+)
+register_scenario(
+    "hand",
+    {"center", "period", "amplitude"},
+    lambda w: Hand(_v(w, "center", ZERO), _f(w, "period", 1.25), _f(w, "amplitude", 4.0)),  # type: ignore[arg-type]
+)
+register_scenario(
+    "target3d",
+    {"center", "amplitude", "period"},
+    lambda w: Target3D(
+        _v(w, "center", (1.0, 1.0, 1.0)),  # type: ignore[arg-type]
+        _f(w, "amplitude", 0.5),
+        _f(w, "period", 6.0),
+    ),
+)
+register_scenario(
+    "rotation_slow", {"duration", "rest", "axis", "position"}, _rotation("rotation_slow")
+)
+register_scenario(
+    "rotation_fast", {"duration", "rest", "axis", "position"}, _rotation("rotation_fast")
+)
+register_scenario(
+    "shaking",
+    {"position", "amplitude", "frequency"},
+    lambda w: Shaking(_v(w, "position", ZERO), _f(w, "amplitude", 0.03), _f(w, "frequency", 3.0)),  # type: ignore[arg-type]
+)
+
+SCENARIOS = tuple(_REGISTRY)
+"""The scenarios of this module (more come from :data:`EXTRA_SCENARIOS`: :func:`scenarios`)."""
+
+
+def make_scenario(world: Mapping[str, Any]) -> Scenario:
+    """Build the scenario a ``[world]`` table describes; ValueError on unknown names/keys."""
+    known = scenarios()
+    kind = world.get("scenario", "still")
+    if kind not in known:
+        raise ValueError(f"unknown world scenario {kind!r}; choose one of {tuple(known)}")
+    entry = known[kind]
+    unknown = set(world) - _COMMON - entry.params
+    if unknown:
+        raise ValueError(
+            f"unknown world keys for scenario {kind!r}: {sorted(unknown)}; "
+            f"allowed: {sorted(entry.params | _COMMON)}"
+        )
+    w = world
+    sc = entry.build(w)
     sc.kind = kind
     if "target_radius" in w or "target_length" in w:
         sc.target = Target(

@@ -105,9 +105,9 @@ def _strings(path: Path) -> list[tuple[int, str]]:
 
 def _application_words() -> set[str]:
     """Names of every installed application, its measures and the simulator's scenarios."""
-    from hera.nodes.world import SCENARIOS
+    from hera.nodes.world import scenarios
 
-    words = {app.name for app in installed_apps()} | set(SCENARIOS)
+    words = {app.name for app in installed_apps()} | set(scenarios())
     index = AppIndex()
     for name, _target in known_measures().items():
         from hera.plugins import find_measure
