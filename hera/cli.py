@@ -15,53 +15,108 @@ from hera.client import ClusterClient, find_run_dir, pid_alive
 BENCHES = ("bus", "kalman", "sync")
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="hera", description=__doc__)
-    sub = p.add_subparsers(dest="cmd", required=True)
+HELP_EXAMPLES = {
+    "up": "hera up train",
+    "node": "hera node deploy/train.toml --node sonar_1",
+    "status": "hera status nav_1",
+    "down": "hera down --cluster train",
+    "inject": "hera inject n3 crash obs1",
+    "measures": "hera measures track_radius",
+    "apps": "hera apps",
+    "examples": "hera examples",
+    "replay": "hera replay hera-run/train --out replayed --models e7,e8",
+    "eval": "hera eval hera-run/train",
+    "bench": "hera bench kalman --quick",
+    "start": "start with:\n  hera up train            a cluster, its live view\n"
+    "  hera eval hera-run/train score the run",
+}
+"""Examples shown by ``hera --help`` and each subcommand's help (documentation: they may
+name the example specs shipped in ``hera.deploy``)."""
 
-    up = sub.add_parser("up", help="start every node of a spec and keep them running")
+
+def _command(sub, name: str, summary: str, example: str) -> argparse.ArgumentParser:
+    """A subcommand with its one-line summary (``hera --help``) and an example."""
+    return sub.add_parser(
+        name,
+        help=summary,
+        description=summary[0].upper() + summary[1:] + ".",
+        epilog=f"example:\n  {example}",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="hera",
+        description="Hera: distributed, fault-tolerant sensor fusion on Eclipse Zenoh.",
+        epilog=HELP_EXAMPLES["start"],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = p.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
+
+    up = _command(
+        sub, "up", "start every node of a spec and keep them running", HELP_EXAMPLES["up"]
+    )
     up.add_argument("spec", help="cluster spec (TOML file, or an example's name: hera examples)")
     up.add_argument("--duration", type=float, help="stop after this many seconds")
     up.add_argument(
-        "--run-dir", help="where logs, state and recordings go (default hera-run/<cluster>)"
+        "--run-dir",
+        help="where logs and recordings go (default: a new hera-run/<cluster>-<time>, "
+        "linked from hera-run/<cluster>)",
     )
+    up.add_argument("--overwrite", action="store_true", help="replace a previous run in --run-dir")
     up.add_argument("--interval", type=float, default=1.0, help="status refresh period, s")
 
-    node = sub.add_parser("node", help="run one node of a spec (hera up does this for you)")
-    node.add_argument("spec", help="cluster spec (TOML) or resolved cluster.json")
+    node = _command(
+        sub,
+        "node",
+        "run one node of a spec yourself (hera up does this for you)",
+        HELP_EXAMPLES["node"],
+    )
+    node.add_argument("spec", help="cluster spec (TOML, an example's name, or a cluster.json)")
     node.add_argument("--node", required=True, help="name of the node to run")
-    node.add_argument("--run-dir", help="run directory for state and logs")
+    node.add_argument("--run-dir", help="run directory for logs and recordings")
+    node.add_argument("--state-dir", help="where the node persists its args (calibrations)")
     node.add_argument("--parent-pid", type=int, help="stop when this process is gone")
     node.add_argument("--log-level", default="INFO")
 
-    for name, text in (
-        ("status", "show the status of a running cluster"),
-        ("down", "stop a running cluster"),
-    ):
-        s = sub.add_parser(name, help=text)
-        s.add_argument("--run-dir", help="run directory of the cluster")
-        s.add_argument("--cluster", help="name of the cluster, if several run")
-        if name == "status":
-            s.add_argument("--json", action="store_true", help="print JSON")
-
-    inj = sub.add_parser("inject", help="inject a fault into a running cluster")
+    st = _command(
+        sub,
+        "status",
+        "show a running cluster (or the details of one node)",
+        HELP_EXAMPLES["status"],
+    )
+    st.add_argument("node", nargs="?", help="a node: every detail of its status")
+    st.add_argument("--json", action="store_true", help="print JSON")
+    dn = _command(sub, "down", "stop a running cluster", HELP_EXAMPLES["down"])
+    inj = _command(sub, "inject", "inject a fault into a running cluster", HELP_EXAMPLES["inject"])
     inj.add_argument("node", help="target node")
     inj.add_argument("fault", help="crash | hang | crash_node | stop | start")
     inj.add_argument("measure", nargs="?", help="target measure (crash, hang, stop, start)")
-    inj.add_argument("--run-dir")
-    inj.add_argument("--cluster")
+    for s in (st, dn, inj):
+        s.add_argument("--run-dir", help="run directory of the cluster")
+        s.add_argument("--cluster", help="name of the cluster, if several run")
 
-    ms = sub.add_parser("measures", help="list the installed measures, or show one")
+    ms = _command(
+        sub, "measures", "list the installed measures, or show one", HELP_EXAMPLES["measures"]
+    )
     ms.add_argument("name", nargs="?", help="a measure: show its columns and arguments")
-    sub.add_parser("apps", help="list the installed applications")
-    sub.add_parser("examples", help="list the example specs (hera up NAME runs one)")
+    _command(sub, "apps", "list the installed applications", HELP_EXAMPLES["apps"])
+    _command(
+        sub, "examples", "list the example specs (hera up NAME runs one)", HELP_EXAMPLES["examples"]
+    )
 
-    rp = sub.add_parser("replay", help="run fusion models offline over recordings")
+    rp = _command(
+        sub,
+        "replay",
+        "run fusion models offline over recordings",
+        HELP_EXAMPLES["replay"],
+    )
     rp.add_argument("recordings", help="a run dir or a folder of <name>_<node>.csv files")
     rp.add_argument("--out", required=True, help="where to write <model>_<node>.csv")
-    rp.add_argument("--models", help="comma-separated model names (default: the spec's)")
+    rp.add_argument("--models", help="comma-separated model names or aliases (default: all)")
     rp.add_argument(
-        "--spec", help="spec giving the models' parameters (default: the recordings' cluster.json)"
+        "--spec", help="spec giving the models' settings (default: the recordings' cluster.json)"
     )
     rp.add_argument("--node", default="replay", help="node name of the outputs")
     rp.add_argument(
@@ -71,13 +126,15 @@ def _parser() -> argparse.ArgumentParser:
         "estimates at the live estimates' instants (to compare a replay with a live node)",
     )
 
-    ev = sub.add_parser("eval", help="score a run's estimates against the truth")
+    ev = _command(
+        sub, "eval", "score a run through its applications, with plots", HELP_EXAMPLES["eval"]
+    )
     ev.add_argument("run_dir")
     ev.add_argument(
         "--settle",
         type=float,
         default=10.0,
-        help="s before position/radius errors count (default 10)",
+        help="s after a model's first estimate before settled errors count (default 10)",
     )
     ev.add_argument(
         "--after",
@@ -92,7 +149,7 @@ def _parser() -> argparse.ArgumentParser:
     ev.add_argument("--node", help="node whose models are plotted (default: the first)")
     ev.add_argument("--json", action="store_true", help="print JSON")
 
-    b = sub.add_parser("bench", help="run a benchmark: " + ", ".join(BENCHES))
+    b = _command(sub, "bench", "run a benchmark: " + ", ".join(BENCHES), HELP_EXAMPLES["bench"])
     b.add_argument("name", choices=BENCHES)
     b.add_argument("rest", nargs=argparse.REMAINDER, help="options of that benchmark")
     return p
@@ -121,13 +178,16 @@ def _dispatch(args: argparse.Namespace) -> int:
             level=args.log_level.upper(),
             format=f"%(asctime)s {args.node} %(name)s %(levelname)s %(message)s",
         )
-        return run_node(spec, args.node, args.run_dir, args.parent_pid)
+        return run_node(spec, args.node, args.run_dir, args.parent_pid, args.state_dir)
     if args.cmd == "up":
         from hera.examples import resolve_spec
         from hera.launcher import Launcher
 
         spec = resolve_spec(args.spec)
-        return Launcher(spec, args.run_dir, args.duration, interval=args.interval).run()
+        launcher = Launcher(
+            spec, args.run_dir, args.duration, interval=args.interval, overwrite=args.overwrite
+        )
+        return launcher.run()
     if args.cmd == "status":
         return _status(args)
     if args.cmd == "down":
@@ -201,13 +261,27 @@ def _measures(args: argparse.Namespace) -> int:
 
 
 def _status(args: argparse.Namespace) -> int:
-    from hera.statusview import render_status
+    from hera.client import running_clusters
+    from hera.statusview import render_node, render_status
 
+    if args.run_dir is None and args.cluster is None and len(running_clusters()) > 1:
+        print("clusters running (pick one with --cluster NAME or --run-dir DIR):")
+        for c in running_clusters():
+            print(f"  {c['cluster']:<16} launcher {c['launcher_pid']:<8} {c['run_dir']}")
+        return 0
     run_dir = find_run_dir(args.run_dir, args.cluster)
     launcher = {}
     with contextlib.suppress(OSError, ValueError, KeyError):
         launcher = json.loads((run_dir / "launcher.json").read_text())["nodes"]
     with ClusterClient.from_run_dir(run_dir) as client:
+        if args.node is not None:
+            client.spec.node(args.node)  # an unknown node lists the known ones
+            reply = client.query(args.node, "status", timeout=1.0).get(args.node)
+            if reply is None:
+                print(f"hera status: node {args.node!r} did not answer", file=sys.stderr)
+                return 1
+            print(json.dumps(reply, indent=1) if args.json else render_node(reply))
+            return 0
         status = client.status(timeout=1.0)
         if args.json:
             print(
@@ -247,6 +321,7 @@ def _inject(args: argparse.Namespace) -> int:
     else:
         verb, request = "inject", {"fault": args.fault, "measure": args.measure}
     with ClusterClient.from_run_dir(run_dir) as client:
+        client.spec.node(args.node)  # an unknown node lists the known ones
         replies = client.query(args.node, verb, request)
     if args.node not in replies:
         print(f"hera inject: node {args.node!r} did not answer", file=sys.stderr)

@@ -1,8 +1,9 @@
 """A tool's view of a running cluster: find it, join its bus, query status, send control.
 
 ``hera up`` writes ``<run-dir>/cluster.json`` (the resolved spec: ports, world epoch) and
-registers the cluster in a per-user directory (:func:`registry_dir`) with the launcher's pid,
-so ``hera status`` and ``hera down`` find it from another terminal.
+registers the cluster in a per-user directory (:func:`registry_dir`), one entry per running
+launcher (``<cluster>-<pid>.json``), so ``hera status`` and ``hera down`` find every running
+cluster from another terminal, two runs of one spec included.
 """
 
 from __future__ import annotations
@@ -55,7 +56,8 @@ def running_clusters() -> list[dict[str, Any]]:
 
 
 def find_run_dir(run_dir: str | None, cluster: str | None) -> Path:
-    """The run directory to talk to: the one given, or the only running cluster (by name)."""
+    """The run directory to talk to: the one given, or the only running cluster (of that
+    name); LookupError saying which ones run otherwise."""
     if run_dir:
         return Path(run_dir)
     found = [c for c in running_clusters() if cluster in (None, c["cluster"])]
@@ -66,8 +68,9 @@ def find_run_dir(run_dir: str | None, cluster: str | None) -> Path:
             + "; start one with 'hera up SPEC' or give --run-dir"
         )
     if len(found) > 1:
-        names = ", ".join(c["cluster"] for c in found)
-        raise LookupError(f"several clusters are running ({names}); pick one with --cluster")
+        where = ", ".join(f"{c['cluster']} in {c['run_dir']}" for c in found)
+        pick = "--run-dir DIR" if cluster else "--cluster NAME or --run-dir DIR"
+        raise LookupError(f"{len(found)} clusters are running ({where}): pick one with {pick}")
     return Path(found[0]["run_dir"])
 
 

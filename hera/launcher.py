@@ -1,10 +1,17 @@
 """``hera up``: run every node of a spec as its own OS process, and keep them running.
 
-- Free loopback ports are picked when the spec says ``base_port = 0``; the resolved spec
-  (ports, world epoch) is written to ``<run-dir>/cluster.json`` and handed to the nodes.
+- The spec is checked whole before anything starts (:mod:`hera.preflight`), fixed ports
+  included: every problem is reported at once.
+- Every run gets its own run directory (:mod:`hera.rundirs`); one given by hand that holds a
+  previous run is refused unless asked to overwrite it. Free loopback ports are picked when
+  the spec says ``base_port = 0``; the resolved spec (ports, world epoch) is written to
+  ``<run-dir>/cluster.json`` and handed to the nodes.
 - A node that exits is started again after ``RESTART_DELAY``, with a start limit like
   systemd's (at most ``START_BURST`` starts within ``START_INTERVAL`` s, then it stays
-  failed). Each node's output goes to ``<run-dir>/logs/<node>.log``.
+  failed). A node that cannot start for a cause that will not go away (a busy port: it exits
+  with :data:`hera.node.EXIT_CONFIG` after logging the cause) is not restarted: the
+  launcher prints the cause, stops the cluster and exits 1. Each node's output goes to
+  ``<run-dir>/logs/<node>.log``.
 - Nodes run in their own sessions (Ctrl-C reaches only the launcher) and watch the
   launcher's pid, so they stop even if the launcher is SIGKILLed.
 - SIGINT, SIGTERM, ``hera down`` or the end of ``--duration`` stop everything: SIGTERM to
@@ -16,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -27,17 +35,58 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+from hera.application import Panel
 from hera.client import ClusterClient, registry_dir
 from hera.fusion import spec_models
-from hera.panel import estimates_panels, render_panel
+from hera.node import EXIT_CONFIG, FATAL
+from hera.panel import estimates_panels
 from hera.plugins import AppIndex
 from hera.preflight import check_spec
-from hera.spec import ClusterSpec, load_spec
-from hera.statusview import render_status
+from hera.rundirs import new_run_dir, prepare_run_dir, state_dir
+from hera.spec import ClusterSpec, SpecError, load_spec
+from hera.statusview import render_view
 
 START_BURST = 5
 START_INTERVAL = 10.0
 RESTART_DELAY = 0.05
+
+
+def busy_ports(spec: ClusterSpec) -> list[str]:
+    """One problem per fixed port of the spec that is already in use on its host."""
+    out = []
+    for n in spec.nodes:
+        if not n.port:
+            continue
+        with socket.socket() as s:
+            try:
+                s.bind((spec.host, n.port))
+            except OSError as e:
+                out.append(
+                    f"{spec.source}: node {n.name!r}: port {n.port} on {spec.host} is not free "
+                    f"({e.strerror}): change [cluster] base_port or the node's port"
+                )
+    return out
+
+
+def shown_measures(spec: ClusterSpec, index: AppIndex) -> dict[str, type]:
+    """The measures whose latest values the live view shows: every measure of an
+    application (its panel decides what to show) and every fusion model."""
+    from hera.plugins import find_measure
+
+    out = dict(spec_models(spec))
+    for _, m in spec.measures():
+        cls = find_measure(m.use)
+        if index.app_of(cls) is not None:
+            out.setdefault(str(m.name), cls)
+    return out
+
+
+def prefer_node(samples: list[dict], node: str) -> list[dict]:
+    """One sample per name: ``node``'s own if it has one, else the first node's."""
+    best: dict[str, dict] = {}
+    for s in sorted(samples, key=lambda s: (s["node"] != node, s["node"])):
+        best.setdefault(s["name"], s)
+    return list(best.values())
 
 
 def free_ports(host: str, n: int) -> list[int]:
@@ -77,6 +126,7 @@ class NodeProc:
     state: str = "starting"  # up | restarting | failed | stopped
     last_exit: int | None = None
     restart_at: float | None = None
+    started_at: float = 0.0
 
     def info(self) -> dict[str, Any]:
         return {
@@ -84,6 +134,7 @@ class NodeProc:
             "state": self.state,
             "restarts": self.restarts,
             "last_exit": self.last_exit,
+            "age_s": round(time.monotonic() - self.started_at, 3),
         }
 
 
@@ -97,23 +148,32 @@ class Launcher:
         duration: float | None = None,
         out: IO[str] | None = None,
         interval: float = 1.0,
+        overwrite: bool = False,
     ) -> None:
         spec = check_spec(load_spec(spec_path))
+        busy = busy_ports(spec)
+        if busy:
+            raise SpecError(busy)
         if spec.base_port == 0 and not all(n.port for n in spec.nodes):
             spec = spec.with_ports(free_ports(spec.host, len(spec.nodes)))
         if "epoch" not in spec.world:
             spec = spec.with_world(epoch=time.time())
         self.spec: ClusterSpec = spec
-        self.run_dir = Path(run_dir or Path("hera-run") / spec.name).resolve()
+        if run_dir is None:
+            self.run_dir = new_run_dir(spec.name)
+        else:
+            self.run_dir = prepare_run_dir(Path(run_dir), overwrite)
+        self.state_dir = state_dir(spec.name, self.run_dir, run_dir is not None)
         self.duration = duration
         self.out = out or sys.stdout
         self.interval = interval
         self.nodes = {n.name: NodeProc(n.name) for n in spec.nodes}
-        self.models = spec_models(spec)
+        self.shown = shown_measures(spec, AppIndex())
         self.index = AppIndex()
         self.stopping = threading.Event()
+        self.failed: str | None = None
         self._logs: dict[str, IO[bytes]] = {}
-        self.registry_file = registry_dir() / f"{spec.name}.json"
+        self.registry_file = registry_dir() / f"{spec.name}-{os.getpid()}.json"
 
     # -- process management -------------------------------------------------------------
     def _spawn(self, np: NodeProc) -> None:
@@ -128,6 +188,8 @@ class Launcher:
             np.name,
             "--run-dir",
             str(self.run_dir),
+            "--state-dir",
+            str(self.state_dir),
             "--parent-pid",
             str(os.getpid()),
         )
@@ -139,6 +201,7 @@ class Launcher:
             start_new_session=True,
         )
         np.starts.append(time.monotonic())
+        np.started_at = time.monotonic()
         np.state = "up"
         np.restart_at = None
 
@@ -163,9 +226,25 @@ class Launcher:
         if code is None:
             return
         np.last_exit = code
+        if code == EXIT_CONFIG:
+            np.state = "failed"
+            cause = self._fatal_cause(np.name) or "see its log"
+            self._say(f"node {np.name} cannot start: {cause}; stopping the cluster")
+            self.failed = f"node {np.name} cannot start: {cause}"
+            self.stopping.set()
+            return
         np.state = "restarting"
         np.restart_at = now + RESTART_DELAY
         self._say(f"node {np.name} exited with code {code}; restarting it")
+
+    def _fatal_cause(self, node: str) -> str | None:
+        """The cause a node logged before it exited EXIT_CONFIG (its last FATAL line)."""
+        try:
+            lines = (self.run_dir / "logs" / f"{node}.log").read_text(errors="replace")
+        except OSError:
+            return None
+        found = [ln.split(FATAL, 1)[1].strip() for ln in lines.splitlines() if FATAL in ln]
+        return found[-1] if found else None
 
     def _say(self, text: str) -> None:
         print(f"[hera up {time.strftime('%H:%M:%S')}] {text}", file=self.out, flush=True)
@@ -181,7 +260,7 @@ class Launcher:
 
     # -- main loop ----------------------------------------------------------------------
     def run(self) -> int:
-        """Run until stopped; return 0 after a clean stop."""
+        """Run until stopped; return 0 after a clean stop, 1 when a node could not start."""
         (self.run_dir / "logs").mkdir(parents=True, exist_ok=True)
         (self.run_dir / "cluster.json").write_text(self.spec.to_json())
         self.registry_file.parent.mkdir(parents=True, exist_ok=True)
@@ -219,7 +298,7 @@ class Launcher:
                     self._show(client, now - started)
                 self.stopping.wait(0.05)
             self._say("stopping")
-            return 0
+            return 1 if self.failed else 0
         finally:
             if client is not None:
                 with contextlib.suppress(Exception):
@@ -231,6 +310,18 @@ class Launcher:
                 self.registry_file.unlink()
             for f in self._logs.values():
                 f.close()
+            self._say(self._next_steps())
+
+    def _next_steps(self) -> str:
+        """Where the run is and what to run next (printed when the cluster has stopped)."""
+        rel = os.path.relpath(self.run_dir)
+        run = str(self.run_dir) if rel.startswith("..") else rel
+        if self.failed:
+            return f"stopped: {self.failed}; logs in {run}/logs"
+        text = f"stopped; the run is in {run}"
+        if spec_models(self.spec):
+            text += f"; next: hera eval {run}  (or hera replay {run} --out DIR)"
+        return text
 
     def _show(self, client: ClusterClient, uptime: float) -> None:
         try:
@@ -239,26 +330,34 @@ class Launcher:
             status = {}
             self._say(f"status query failed: {e}")
         launcher = {n: p.info() for n, p in self.nodes.items()}
-        text = render_status(self.spec.name, status, launcher, uptime, str(self.run_dir))
-        if self.models and status:
-            text += "\n\n" + self._estimates(client, status)
-        if self.out.isatty():
-            self.out.write("\x1b[H\x1b[2J" + text + "\n")
-        else:
-            self.out.write(text + "\n")
+        panels = self._panels(client, status)
+        tty = self.out.isatty()
+        width, height = shutil.get_terminal_size((120, 40)) if tty else (120, 10_000)
+        text = render_view(
+            self.spec.name,
+            status,
+            launcher,
+            uptime=uptime,
+            run_dir=os.path.relpath(self.run_dir),
+            panels=panels,
+            width=width,
+            height=height - 1,
+        )
+        self.out.write(("\x1b[H\x1b[2J" if tty else "") + text + "\n")
         self.out.flush()
 
-    def _estimates(self, client: ClusterClient, status: dict) -> str:
+    def _panels(self, client: ClusterClient, status: dict) -> list[Panel]:
+        """The applications' panels, from the store of one node (the logging node, which
+        holds every sample, else the first answering)."""
+        if not self.shown or not status:
+            return []
         node = self.spec.log_node if self.spec.log_node in status else sorted(status)[0]
         try:
             reply = client.query(node, "store", {}, timeout=0.5).get(node, {})
-            samples = reply.get("samples", [])
-            panels = estimates_panels(self.models, samples, self.spec.world, self.index)
+            samples = prefer_node(reply.get("samples", []), node)
+            return estimates_panels(self.shown, samples, self.spec.world, self.index)
         except Exception as e:  # the view must never take the launcher down
-            return f"estimates: query failed ({e})"
-        if not panels:
-            return "estimates: none yet (models start when their inputs arrive)"
-        return "\n\n".join(render_panel(p) for p in panels)
+            return [Panel(f"estimates: query failed ({e})", ("",))]
 
     def _stop_all(self) -> None:
         procs = [p.proc for p in self.nodes.values() if p.proc is not None]

@@ -15,7 +15,9 @@ guarantees of ARCHITECTURE.md:
    answer the control plane (a node that answers status has all its measures registered).
 
 Exit codes: 0 after a requested stop, 3 when the supervisor's restart intensity is exceeded
-(escalation), 70 when a crash is injected. The launcher restarts a node that exits non-zero.
+(escalation), 70 when a crash is injected, 78 when it cannot start for a cause a restart
+will not cure (its port is taken): it logs ``FATAL: <cause>`` first. The launcher restarts a
+node that exits non-zero, but 78.
 """
 
 from __future__ import annotations
@@ -52,8 +54,23 @@ from hera.worker import Worker
 log = logging.getLogger("hera.node")
 
 EXIT_ESCALATED = 3
+EXIT_CONFIG = 78
+FATAL = "FATAL: "
+"""Start of the log line that gives the cause before a node exits EXIT_CONFIG."""
 RECOVERY_TIMEOUT = 1.0
-__all__ = ["EXIT_ESCALATED", "EXIT_INJECTED_CRASH", "Node", "run_node"]
+__all__ = [
+    "EXIT_CONFIG",
+    "EXIT_ESCALATED",
+    "EXIT_INJECTED_CRASH",
+    "FATAL",
+    "FatalStart",
+    "Node",
+    "run_node",
+]
+
+
+class FatalStart(RuntimeError):
+    """The node cannot start, and restarting it will not help (see the exit codes)."""
 
 
 class Node:
@@ -69,12 +86,16 @@ class Node:
         name: str,
         run_dir: str | Path | None = None,
         services: Mapping[str, ServiceFactory] | None = None,
+        state_dir: str | Path | None = None,
     ) -> None:
         self.spec = spec
         self.decl = spec.node(name)
         self.name = name
         self.keys = Keys(spec.name)
         self.run_dir = Path(run_dir) if run_dir is not None else None
+        if state_dir is None and self.run_dir is not None:
+            state_dir = self.run_dir / "state"
+        self.state_dir = Path(state_dir) / name if state_dir is not None else None
         self.store = Store()
         self.resources = Resources()
         logs = self.run_dir is not None and spec.log_node == name
@@ -106,10 +127,14 @@ class Node:
         bus = BusConfig(
             listen=(me,), connect=tuple(e for e in others if e != me), lease_ms=self.spec.lease_ms
         )
-        self.session = s = open_session(bus)
+        try:
+            self.session = s = open_session(bus)
+        except zenoh.ZError as e:
+            if "Address already in use" in str(e):
+                raise FatalStart(f"its port {me} is in use by another process") from None
+            raise
         self.data.attach(s)
-        state_dir = self.run_dir / "state" / self.name if self.run_dir is not None else None
-        self.args = ArgsStore(self.name, s, self.keys, state_dir)
+        self.args = ArgsStore(self.name, s, self.keys, self.state_dir)
         self._handles.append(
             s.liveliness().declare_subscriber(
                 self.keys.alive_all, self.peers.on_alive, history=True
@@ -259,14 +284,24 @@ class Node:
         self.stop(EXIT_ESCALATED)
 
 
-def run_node(spec: ClusterSpec, name: str, run_dir: str | None, parent_pid: int | None) -> int:
+def run_node(
+    spec: ClusterSpec,
+    name: str,
+    run_dir: str | None,
+    parent_pid: int | None,
+    state_dir: str | None = None,
+) -> int:
     """Run one node until SIGTERM/SIGINT, a shutdown request, escalation or the death of
     ``parent_pid``; clean up and return the exit code."""
-    node = Node(spec, name, run_dir)
+    node = Node(spec, name, run_dir, state_dir=state_dir)
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: node.stop(0))
     try:
-        node.start()
+        try:
+            node.start()
+        except FatalStart as e:
+            log.error("%s%s", FATAL, e)
+            return EXIT_CONFIG
         while not node.halt.wait(0.25):
             if parent_pid is not None and os.getppid() != parent_pid:
                 log.error("launcher %d is gone; node %s stops", parent_pid, name)

@@ -43,6 +43,16 @@ def measures_status(node: Node) -> dict[str, dict[str, Any]]:
     return out
 
 
+def rss_mb() -> float | None:
+    """This process's resident memory (MB), from /proc (None where there is none)."""
+    try:
+        with open("/proc/self/statm") as f:
+            pages = int(f.read().split()[1])
+    except (OSError, ValueError, IndexError):
+        return None
+    return round(pages * os.sysconf("SC_PAGE_SIZE") / 1e6, 1)
+
+
 def node_status(node: Node) -> dict[str, Any]:
     """The whole status of ``node`` (see the module docstring)."""
     data = node.data
@@ -51,6 +61,7 @@ def node_status(node: Node) -> dict[str, Any]:
         "cluster": node.spec.name,
         "pid": os.getpid(),
         "uptime_s": round(time.time() - node.started_at, 3),
+        "rss_mb": rss_mb(),
         "escalated": node.supervisor.escalated if node.supervisor else None,
         "measures": measures_status(node),
         "store": {

@@ -59,7 +59,18 @@ def plain_panel(estimates: Sequence[Estimate]) -> Panel:
 
 def render_panel(panel: Panel) -> str:
     """The panel as aligned text: its title, a header line and its rows (first column
-    left-aligned, the others right-aligned)."""
+    left-aligned, the others right-aligned). A ``node`` column whose rows all name the same
+    node is dropped and the node named in the title instead."""
+    if "node" in panel.columns and len(panel.rows) > 0:
+        i = panel.columns.index("node")
+        nodes = {r[i] for r in panel.rows if i < len(r) and r[i]}
+        if len(nodes) == 1:
+            keep = [j for j in range(len(panel.columns)) if j != i]
+            panel = Panel(
+                f"{panel.title} on node {nodes.pop()}",
+                tuple(panel.columns[j] for j in keep),
+                tuple(tuple(r[j] for j in keep if j < len(r)) for r in panel.rows),
+            )
     table = [panel.columns, *panel.rows]
     widths = [
         max(len(str(row[i])) if i < len(row) else 0 for row in table)

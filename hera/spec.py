@@ -392,6 +392,10 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
             problems.append(f"{source}: node {n['name']}: two measures publish as {dup!r}")
         port = n.get("port") or (base_port + i if base_port else 0)
         built.append(NodeSpec(n["name"], port, n.get("sync_hosts", ()), tuple(ms)))
+    ports = [n.port for n in built if n.port]
+    for dup in sorted({p for p in ports if ports.count(p) > 1}):
+        users = [n.name for n in built if n.port == dup]
+        problems.append(f"{source}: [[nodes]]: nodes {users} all listen on port {dup}")
     log_node = logging_t.get("log_node")
     if log_node is not None and log_node not in per_node:
         problems.append(f"{source}: [logging]: node {log_node!r} is not a node of the spec")
