@@ -8,6 +8,14 @@ simulated network with clocks that can freeze.
 
 Held requests are opaque ``ticket`` objects; the core answers ``(ticket, payload)`` pairs
 (``payload`` None: drop the request without a reply) for the caller to send.
+
+A leader grants a queued request only after a vote round *started after the request
+arrived* came back confirmed by a majority at its epoch (as Raft's ReadIndex): so a leader
+that was paused, or whose clock stopped, grants nothing once a majority has moved on to a
+higher epoch, whatever its clock says. Requests arriving while no such round is under way
+start one; under load one round backs every request that arrived before it. A request is
+granted at most L after it arrived (its asker asks again by then), so a grant's duration
+is at most L + D.
 """
 
 from __future__ import annotations
@@ -18,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hera.sync.election import Term, Timing, Voter
+from hera.sync.promises import Promises
 from hera.sync.protocol import AcquireRequest, GrantReply, Release, VoteReply, VoteRequest
 from hera.sync.slots import SlotTable, Waiting
 
@@ -30,12 +39,13 @@ class Round:
     """A vote round to run: ask every host to confirm ``(epoch, me)``.
 
     ``kind``: ``probe`` (pre-vote), ``elect`` or ``renew``; ``asked_at``: this host's clock
-    just before the requests go out.
+    just before the requests go out; ``seq``: rounds started by this host, this one included.
     """
 
     kind: str
     epoch: int
     asked_at: float
+    seq: int = 0
 
     def request(self, me: str) -> VoteRequest:
         return VoteRequest(self.epoch, me, probe=self.kind == "probe")
@@ -51,6 +61,7 @@ class GroupCore:
         timing: Timing,
         now: float,
         rng: random.Random | None = None,
+        promises: Promises | None = None,
     ) -> None:
         if me not in hosts:
             raise ValueError(f"node {me!r} is not among the hosts {hosts}")
@@ -59,7 +70,7 @@ class GroupCore:
         self.majority = len(self.hosts) // 2 + 1
         self.timing = timing
         self.rng = rng or random.Random()
-        self.voter = Voter(me, timing, now)
+        self.voter = Voter(me, timing, now, promises)
         self.term: Term | None = None
         self.table: SlotTable | None = None
         self.alive: set[str] = {me}
@@ -70,6 +81,8 @@ class GroupCore:
         self.demotions: dict[str, int] = {}
         self.vote_rounds = 0
         self.renew_sent = float("-inf")
+        self.rounds_started = 0
+        self.backed_seq = 0  # the latest round confirmed by a majority in the current term
         self.closed = False
 
     # -- liveliness -----------------------------------------------------------------------
@@ -97,26 +110,52 @@ class GroupCore:
     # -- slot requests ------------------------------------------------------------------------
 
     def on_acquire(self, req: AcquireRequest, now: float, ticket: Any) -> list[Reply]:
-        """A measure asks for a slot: queue it while leader (long poll), else drop it."""
-        if self.term is None or self.table is None or self.closed:
+        """A measure asks for a slot: queue it while leader (long poll), else drop it.
+
+        An asker that knows a newer term than ours (a higher epoch, or ours under another
+        leader: promises were lost) makes us step down, to be re-elected above it."""
+        term = self.term
+        if term is None or self.table is None or self.closed:
             return [(ticket, None)]
+        if req.known_epoch > term.epoch or (
+            req.known_epoch == term.epoch and req.known_leader not in ("", self.me)
+        ):
+            self.seen_epoch = max(self.seen_epoch, req.known_epoch)
+            return [(ticket, None), *self.end_term("a client knows a newer term")]
         if req.duration > self.timing.max_slot:
             return [(ticket, None)]
         # a grace after the asker's timeout, so that its next attempt finds and replaces
         # this request, keeping its place in the queue
         give_up = now + req.timeout + self.timing.lease / 2
+        w = Waiting(req.holder, req.duration, now, give_up, ticket, round_seq=self.rounds_started)
         out: list[Reply] = []
-        old = self.table.enqueue(Waiting(req.holder, req.duration, now, give_up, ticket))
+        old = self.table.enqueue(w)
         if old is not None:
             out.append((old.ticket, None))
         out += self.pump(now)
         return out
 
     def on_release(self, rel: Release, now: float) -> list[Reply]:
-        """A holder gives its slot back."""
-        if self.table is not None and self.table.release(rel.epoch, rel.token, rel.used):
+        """A holder gives its slot back (only the holder, for the slot it holds)."""
+        if self.table is not None and self.table.release(
+            rel.epoch, rel.token, rel.holder, rel.used
+        ):
             return self.pump(now)
         return []
+
+    def _backed(self, w: Waiting) -> bool:
+        """A majority confirmed this term in a round started after ``w`` arrived."""
+        return w.round_seq < self.backed_seq
+
+    def _fresh(self, w: Waiting, now: float) -> bool:
+        """``w`` arrived at most L ago, so its grant's duration is at most L + D."""
+        return now - w.received_at <= self.timing.lease
+
+    def _unbacked(self) -> bool:
+        """A queued request arrived after the last round started: it needs a new round."""
+        return self.table is not None and any(
+            w.round_seq >= self.rounds_started for w in self.table.queue.values()
+        )
 
     def pump(self, now: float) -> list[Reply]:
         """Free an expired slot, drop given-up requests, hand out the slot if it may."""
@@ -124,7 +163,11 @@ class GroupCore:
         if term is None or table is None:
             return []
         out: list[Reply] = [(w.ticket, None) for w in table.expire(now)]
-        res = table.grant(now, lambda d: term.may_grant(d, now))
+        res = table.grant(
+            now,
+            lambda w: self._backed(w) and term.may_grant(w.duration, now),
+            lambda w: self._fresh(w, now),
+        )
         if res is not None:
             w, g = res
             reply = GrantReply(g.epoch, g.token, SlotTable.grant_duration(w, g), self.me)
@@ -155,7 +198,7 @@ class GroupCore:
         if self.term is not None and not self.term.tick(now):
             out += self.end_term("lease or pause")
         if self.term is not None:
-            if now - self.renew_sent >= self.timing.renew:
+            if now - self.renew_sent >= self.timing.renew or self._unbacked():
                 self.renew_sent = now
                 return out, self._round("renew", self.term.epoch, now)
             out += self.pump(now)
@@ -166,7 +209,8 @@ class GroupCore:
 
     def _round(self, kind: str, epoch: int, now: float) -> Round:
         self.vote_rounds += 1
-        return Round(kind, epoch, now)
+        self.rounds_started += 1
+        return Round(kind, epoch, now, self.rounds_started)
 
     def _may_run(self, now: float) -> bool:
         """True if this host should run for election now."""
@@ -216,7 +260,11 @@ class GroupCore:
                 pass
             elif won:
                 term.confirmed(rnd.asked_at, now)
-                out += self.end_term("late confirmation") if term.over else self.pump(now)
+                if term.over:
+                    out += self.end_term("late confirmation")
+                else:
+                    self.backed_seq = max(self.backed_seq, rnd.seq)
+                    out += self.pump(now)
             elif higher > rnd.epoch:
                 out += self.end_term("higher epoch")
             # else: no majority this time; the lease runs out unless a renewal succeeds
@@ -225,6 +273,7 @@ class GroupCore:
             self.table = SlotTable(rnd.epoch, expiry_margin=self.timing.margin)
             self.terms += 1
             self.renew_sent = rnd.asked_at
+            self.backed_seq = rnd.seq
             self.vacant_since = None
         else:
             self._back_off(now)

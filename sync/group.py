@@ -7,24 +7,30 @@ A :class:`GroupHost` runs on every node that hosts the service for a group. It d
 - the ``acquire`` queryable: while this host is the leader, requests are queued and
   answered when their slot comes (long poll); otherwise dropped without a reply;
 - the ``release`` subscriber;
-- one runner thread: renews the leader's lease, runs for election when the group has no
-  fresh leader, frees expired slots and hands out the next slot.
+- one runner thread: runs the vote rounds the core asks for (renewals, the rounds that
+  back grants, pre-votes and elections), frees expired slots and hands out the next slot.
 
-Locking: one lock per group guards all state; no Zenoh ``get`` is made while holding it
-(the local ``vote`` queryable needs it).
+All decisions are :class:`~hera.sync.core.GroupCore`'s; this class only moves messages.
+With a ``state_dir`` the voter's promise is kept in ``sync-<group>.promise.json`` there
+(:mod:`hera.sync.promises`). Locking: one lock per group guards the core; no Zenoh
+``get`` is made and no reply is sent while holding it (the local ``vote`` queryable
+needs it).
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import threading
-import time
 from collections.abc import Callable, Iterable
+from pathlib import Path
 from typing import Any
 
 import zenoh
+from hera.sync import clock as sync_clock
 from hera.sync.core import GroupCore, Reply, Round
 from hera.sync.election import Timing
+from hera.sync.promises import PromiseFile
 from hera.sync.protocol import AcquireRequest, ProtocolError, Release, VoteReply, VoteRequest
 
 from hera.keys import Keys
@@ -59,7 +65,8 @@ class GroupHost:
         node: str,
         hosts: list[str],
         timing: Timing,
-        clock: Clock = time.monotonic,
+        clock: Clock = sync_clock.now,
+        state_dir: str | os.PathLike[str] | None = None,
     ) -> None:
         if node not in hosts:
             raise ValueError(f"sync group {group!r}: node {node!r} is not among its hosts {hosts}")
@@ -72,7 +79,12 @@ class GroupHost:
         self._lock = threading.Lock()
         self._wake = threading.Condition(self._lock)
         self._stop = False
-        self.core = GroupCore(node, hosts, timing, clock())
+        promises = (
+            PromiseFile(Path(state_dir) / f"sync-{group}.promise.json", group)
+            if state_dir is not None
+            else None
+        )
+        self.core = GroupCore(node, hosts, timing, clock(), promises=promises)
         self.hosts = self.core.hosts
         self.bad_messages = 0
         self._decl: list[Any] = []

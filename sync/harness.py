@@ -55,10 +55,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hera.sync import clock as sync_clock
+
 from hera.launcher import free_ports
 
 STATUS_EVERY = 0.05
-CLOCK = time.monotonic
+CLOCK = sync_clock.now
 """The clock of every time the harness logs (the clock grants' deadlines are on)."""
 
 # ------------------------------------------------------------------------------------------
@@ -156,18 +158,18 @@ class _Worker:
     def note_late(self, grant: Any) -> None:
         self.node.client.note_late(grant)
 
-    def _fire(self, g: Any) -> Any:
-        """The runtime's wrapper and the measure's code, then the driver."""
-        g.require(self.slot)  # the runtime's trigger-time check (hera/node.py)
+    def _fire(self, turn: Any) -> Any:
+        """The measure's code, then the driver."""
         self.stall.maybe()  # the measure's own code
-        return self._drive(g)
+        return self._drive(turn)
 
-    def _drive(self, g: Any) -> Any:
-        """The simulated driver: trigger, sound for ``slot``, return."""
-        checked = CLOCK()
-        self.stall_trigger.maybe()
+    def _drive(self, turn: Any) -> Any:
+        """The simulated driver: the fit check at the trigger, the trigger, the sound."""
+        checked = turn.check_at_trigger().clock  # raises SlotLost if it no longer fits
+        self.stall_trigger.maybe()  # outside the guarantee beyond Timing.trigger_pause
         start = CLOCK()  # the trigger
         end = start + self.slot
+        g = turn.grant
         self.node.log.line("F", start, end, g.deadline, self.holder, g.epoch, g.token, checked)
         result = self.fire()
         left = end - CLOCK()
@@ -216,7 +218,12 @@ class _Node:
         hosts = [h for h in args.hosts.split(",") if h]
         host_groups = {args.group: hosts} if args.node in hosts else {}
         self.service = SyncService(
-            self.session, self.keys, args.node, host_groups, lease_ms=args.lease_ms
+            self.session,
+            self.keys,
+            args.node,
+            host_groups,
+            lease_ms=args.lease_ms,
+            state_dir=args.state_dir or None,
         )
         self.client = self.service.client()
         self.fire_factory = _no_fire
@@ -302,6 +309,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--lease-ms", type=int, default=300)
     p.add_argument("--bus-lease-ms", type=int, default=2000)
     p.add_argument("--fire", default="", help="module:factory returning the fire callable")
+    p.add_argument("--state-dir", default="", help="where the voter keeps its promise")
     p.add_argument("--log", required=True)
     p.add_argument("--status", required=True)
     args = p.parse_args(argv)
@@ -449,7 +457,9 @@ class Cluster:
     """Harness node processes on loopback; a context manager that always cleans up.
 
     ``hosts`` host the service (and fire, one measure each unless ``measures`` says
-    otherwise); ``clients`` only fire. Every process is SIGCONTed then SIGKILLed at exit.
+    otherwise); ``clients`` only fire. Each node keeps its sync state in
+    ``state_dir(node)`` (kept across restarts unless wiped). Every process is SIGCONTed then
+    SIGKILLed at exit.
     """
 
     def __init__(
@@ -501,6 +511,7 @@ class Cluster:
                 "--cluster", self.cluster, "--lease-ms", str(self.lease_ms),
                 "--bus-lease-ms", str(self.bus_lease_ms),
                 "--log", str(self.log_path(n)), "--status", str(self.status_path(n)),
+                "--state-dir", str(self.state_dir(n)),
             ]  # fmt: skip
             for name, slot in self.measures.get(n, []):
                 cmd += ["--measure", f"{name}:{slot}"]

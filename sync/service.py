@@ -2,16 +2,21 @@
 
 from __future__ import annotations
 
+import logging
+import os
 import threading
 from collections.abc import Iterable, Mapping
 from typing import Any
 
 import zenoh
+from hera.sync import clock as sync_clock
 from hera.sync.client import SyncClient
 from hera.sync.election import Timing
 from hera.sync.group import GroupHost
 
 from hera.keys import Keys, check_chunk
+
+log = logging.getLogger("hera.sync")
 
 DEFAULT_LEASE_MS = 300
 
@@ -49,7 +54,10 @@ class SyncService:
     a list of ``(group, hosts)`` pairs is accepted too, and an empty one for a node that
     hosts nothing. ``lease_ms`` is the leader lease L (how long a majority confirmation
     lets a leader grant); ``max_slot_ms`` the longest slot lease (default L / 2, the most
-    allowed). A new leader grants nothing for L + max_slot + 50 ms after its election.
+    allowed); ``margin_ms`` the margin m. A new leader grants nothing for L + max_slot + m
+    after its election. ``state_dir``: where each hosted group's voter keeps its promise
+    (durable across restarts; without it, promises live in memory and a restart is covered
+    only by the quiet period, outside the guarantee of ``sync/README.md``).
     """
 
     def __init__(
@@ -61,11 +69,13 @@ class SyncService:
         lease_ms: int = DEFAULT_LEASE_MS,
         max_slot_ms: int | None = None,
         margin_ms: int = 50,
+        state_dir: str | os.PathLike[str] | None = None,
     ) -> None:
         check_chunk(node, "node name")
         lease = lease_ms / 1000.0
         max_slot = (max_slot_ms / 1000.0) if max_slot_ms is not None else lease / 2
         self.timing = Timing(lease=lease, max_slot=max_slot, margin=margin_ms / 1000.0)
+        self.state_dir = state_dir
         self.node = node
         self.keys = keys
         self.session = session
@@ -73,8 +83,15 @@ class SyncService:
         for group, hosts in groups.items():
             if node not in hosts:
                 raise ValueError(f"sync group {group!r}: node {node!r} not among hosts {hosts}")
+        if groups and state_dir is None:
+            log.warning(
+                "sync on %s: no state directory, promises kept in memory only: a restart is "
+                "covered by the quiet period, not by the guarantee (sync/README.md)",
+                node,
+            )
         self.hosts: dict[str, GroupHost] = {
-            g: GroupHost(session, keys, g, node, hosts, self.timing) for g, hosts in groups.items()
+            g: GroupHost(session, keys, g, node, hosts, self.timing, state_dir=state_dir)
+            for g, hosts in groups.items()
         }
         self._client = SyncClient(session, keys, self.timing)
         self._lock = threading.Lock()
@@ -111,6 +128,10 @@ class SyncService:
             "lease_ms": round(t.lease * 1e3, 3),
             "max_slot_ms": round(t.max_slot * 1e3, 3),
             "new_leader_wait_ms": round(t.wait * 1e3, 3),
+            "margin_ms": round(t.margin * 1e3, 3),
+            "trigger_pause_ms": round(t.trigger_pause * 1e3, 3),
+            "clock": sync_clock.NAME,
+            "durable_promises": self.state_dir is not None,
             "groups": {g: h.status() for g, h in self.hosts.items()},
             "client": self._client.status(),
         }

@@ -25,7 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from hera.sync.client import Grant
+from hera.sync.client import Grant, KnownTerms, SlotLost, Turn
 from hera.sync.core import GroupCore, Reply, Round
 from hera.sync.election import Timing
 from hera.sync.protocol import AcquireRequest, GrantReply, Release, VoteReply, VoteRequest
@@ -231,13 +231,27 @@ class Proc:
                 self._backlog.append(fn)
 
 
+class SimDisk:
+    """A voter's promise storage that survives a restart (``hera.sync.promises.Promises``)."""
+
+    def __init__(self) -> None:
+        self.promise = (0, "")
+
+    def load(self) -> tuple[int, str]:
+        return self.promise
+
+    def save(self, epoch: int, candidate: str) -> None:
+        self.promise = (epoch, candidate)
+
+
 class SimHost(Proc):
     """A host of the group: a :class:`GroupCore`, driven as ``GroupHost`` drives it."""
 
     def __init__(self, sim: Sim, name: str, hosts: list[str], clock: SimClock) -> None:
         super().__init__(sim, name, clock)
         self.hosts = hosts
-        self.disk: dict[str, Any] = {}  # what survives a restart
+        self.durable = True
+        self.disk = SimDisk()  # what survives a restart (unless wiped)
         self.core = self._new_core()
         self._round: Round | None = None
         self._round_id = 0
@@ -254,6 +268,7 @@ class SimHost(Proc):
             self.sim.timing,
             self.local(),
             rng=random.Random(self.sim.rnd.random()),
+            promises=self.disk if self.durable else None,
         )
 
     # -- lifecycle ----------------------------------------------------------------------------
@@ -262,7 +277,7 @@ class SimHost(Proc):
         """Kill and start again: memory lost (``wipe``: the disk too); tokens go and come."""
         self.incarnation += 1
         if wipe:
-            self.disk = {}
+            self.disk = SimDisk()
         self.paused = False
         self._backlog = []
         if self.clock.frozen:
@@ -395,7 +410,7 @@ class SimClient(Proc):
         self.duration = duration if duration is not None else slot + max(0.005, 0.25 * slot)
         self.pause_after_check = pause_after_check
         self.think = think
-        self.known: dict[str, int] = {}
+        self.known = KnownTerms()
         self.attempt = 0
         self.asked_at = 0.0
         self.busy = False
@@ -412,7 +427,7 @@ class SimClient(Proc):
         attempt = self.attempt
         self.asked_at = self.local()
         timeout = self.sim.timing.lease
-        req = AcquireRequest(self.name, self.duration, timeout)
+        req = AcquireRequest(self.name, self.duration, timeout, *self.known.get("g"))
         for h in self.sim.hosts():
             self.sim.send(self.name, h.name, req, lambda h=h: h.on_acquire(self, req, attempt))
         self.after(timeout, lambda: self._timeout(attempt))
@@ -426,26 +441,26 @@ class SimClient(Proc):
         if attempt != self.attempt or self.busy:
             self._release(g, used=False)  # a second grant, or one for a request given up
             return
-        stale = rep.epoch < self.known.get("g", 0)
-        if stale:
+        if not self.known.accept("g", rep.epoch, rep.leader):
             self.stale += 1
             self._release(g, used=False)
             return
-        self.known["g"] = rep.epoch
         self.busy = True
         self.attempt += 1  # this attempt is answered
-        now = self.local()
-        if not g.fits(self.slot, now):
+        turn = Turn(g, self.slot, self.local)
+        if not turn.fits():
             self.late += 1
             self._release(g, used=False)
             self._done()
             return
-        self._trigger(g)
+        self._trigger(turn)
 
-    def _trigger(self, g: Grant) -> None:
+    def _trigger(self, turn: Turn) -> None:
         """The trigger-time check, then the sound after ``pause_after_check``."""
-        checked = self.local()
-        if not g.fits(self.slot, checked):
+        g = turn.grant
+        try:
+            checked = turn.check_at_trigger().clock
+        except SlotLost:
             self.late += 1
             self._release(g, used=False)
             self._done()

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import time
-
 import msgpack
 import pytest
+from hera.sync import clock
 from hera.sync.client import Grant, SlotLost, run_in_slot, slot_duration
 from hera.sync.protocol import (
     AcquireRequest,
@@ -37,7 +36,7 @@ def test_one_slot_at_a_time_fifo_and_round_robin():
         w, g = table.grant(now, yes)
         assert table.grant(now, yes) is None  # one slot at a time
         order.append(w.holder)
-        assert table.release(g.epoch, g.token, used=True)
+        assert table.release(g.epoch, g.token, g.holder, used=True)
         ask(table, w.holder, now)  # asks again: back of the queue
     assert order == ["a", "b", "c", "a", "b", "c"]
 
@@ -63,7 +62,7 @@ def test_tokens_strictly_increase_across_terms():
             ask(table, "a", float(i))
             _, g = table.grant(float(i), yes)
             tokens.append(g.token)
-            table.release(g.epoch, g.token, used=True)
+            table.release(g.epoch, g.token, g.holder, used=True)
     assert tokens == sorted(set(tokens))
     assert tokens[3] >> TOKEN_BITS == 2
 
@@ -73,8 +72,9 @@ def test_slot_freed_on_release_or_after_its_lease_never_earlier():
     ask(table, "a", 0.0, d=0.02, timeout=5.0)
     ask(table, "b", 0.0, d=0.02, timeout=5.0)
     _, g = table.grant(1.0, yes)
-    assert not table.release(1, g.token + 1, used=True)  # not the slot that is out
-    assert not table.release(0, g.token, used=True)  # other term
+    assert not table.release(1, g.token + 1, "a", used=True)  # not the slot that is out
+    assert not table.release(0, g.token, "a", used=True)  # other term
+    assert not table.release(1, g.token, "b", used=True)  # not its holder
     table.expire(1.0 + 0.02 + 0.049)
     assert table.grant(1.07, yes) is None  # lease (+ margin) not over: still taken
     table.expire(1.0 + 0.02 + 0.05)
@@ -160,7 +160,7 @@ class FakeClient:
         self.asked: list[float] = []
 
     def acquire(self, group, holder, duration, timeout):
-        asked_at = time.monotonic()
+        asked_at = clock.now()
         self.asked.append(duration)
         if self.grant_after is None:
             return None

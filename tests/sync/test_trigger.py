@@ -7,6 +7,7 @@ from __future__ import annotations
 import time
 
 from hera.nodes.sonar_measure import Sonar
+from hera.sync import clock
 from hera.sync.client import Grant, run_in_slot
 from nodes_helpers import fresh_boards, make_ctx  # noqa: F401 - autouse fixture
 
@@ -22,7 +23,7 @@ class OneGrant:
         self.late: list[Grant] = []
 
     def acquire(self, group, holder, duration, timeout):
-        return Grant(group, holder, 1, 7, self.duration, time.monotonic(), "x")
+        return Grant(group, holder, 1, 7, self.duration, clock.now(), "x")
 
     def release(self, grant, used):
         self.released.append((grant.token, used))
