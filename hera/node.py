@@ -155,7 +155,10 @@ class Node:
         except ImportError:
             return
         hosts = {g: self.spec.sync_groups()[g] for g in self.decl.sync_hosts}
-        self.sync = SyncService(self.session, self.keys, self.name, hosts, self.spec.sync_lease_ms)
+        state = self.run_dir / "state" / self.name if self.run_dir is not None else None
+        self.sync = SyncService(
+            self.session, self.keys, self.name, hosts, self.spec.sync_lease_ms, state_dir=state
+        )
         self.sync.start()
 
     def _add_child(self, decl: MeasureDecl, start: bool = True) -> None:
@@ -212,9 +215,9 @@ class Node:
         holder = f"{self.name}/{spec.name}"
 
         def in_slot(fn):
-            def fire(grant):
-                grant.require(spec.slot)  # the trigger-time check (see run_in_slot)
-                ctx.grant = grant  # the measure sees (and announces) the grant it runs under
+            def fire(turn):
+                # the measure hands the turn to its driver, which checks it at the trigger
+                ctx.grant = turn
                 try:
                     return fn()
                 finally:

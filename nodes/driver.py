@@ -23,7 +23,7 @@ from __future__ import annotations
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 from hera.nodes.geometry import Vec3
 
@@ -98,8 +98,14 @@ class SonarDriver(Protocol):
         """The range to the nearest object in the beam (whole inches)."""
         ...
 
-    def read_sample(self) -> RangeSample:
-        """The range with the time of the ping."""
+    def read_sample(self, grant: Any = None) -> RangeSample:
+        """The range with the time of the ping.
+
+        ``grant``: in a synchronised step, the sync turn (``hera.sync.client.Turn``): call
+        ``grant.check_at_trigger(time.time)`` right before triggering the ping (after any
+        lock) and stamp the sample with its ``wall`` reading; it raises ``SlotLost`` when
+        the ping no longer fits its slot: then do not ping.
+        """
         ...
 
 
@@ -129,6 +135,6 @@ class SonarDriverBase(ABC):
     @abstractmethod
     def read_range(self) -> int: ...
 
-    def read_sample(self) -> RangeSample:
-        t = time.time()
-        return RangeSample(t, self.read_range())
+    def read_sample(self, grant: Any = None) -> RangeSample:
+        t = time.time() if grant is None else grant.check_at_trigger(time.time).wall
+        return RangeSample(t, self.read_range())  # read_range triggers the ping
