@@ -227,8 +227,12 @@ class GroupCore:
             self.next_try = max(self.next_try, now + rank * self.timing.lease / 4)
         return now >= self.next_try
 
-    def majority_of(self, rnd: Round, replies: Iterable[VoteReply]) -> tuple[set[str], int]:
-        """The hosts that said yes to ``rnd`` among ``replies``, and the highest epoch seen."""
+    def tally(self, rnd: Round, replies: Iterable[VoteReply]) -> tuple[bool, int]:
+        """Did ``replies`` win ``rnd``, and the highest epoch they show.
+
+        Won: a majority of the hosts said yes; for an election, this host's own voter among
+        them, so that the epoch is saved here before the term starts (a restarted process
+        never runs a term of its previous life again)."""
         acks: set[str] = set()
         higher = 0
         for v in replies:
@@ -237,16 +241,16 @@ class GroupCore:
             higher = max(higher, v.epoch)
             if v.ok and (rnd.kind == "probe" or (v.epoch == rnd.epoch and v.candidate == self.me)):
                 acks.add(v.voter)
-        return acks, higher
+        won = len(acks) >= self.majority and (rnd.kind != "elect" or self.me in acks)
+        return won, higher
 
     def round_done(
         self, rnd: Round, replies: Iterable[VoteReply], now: float
     ) -> tuple[list[Reply], Round | None]:
         """Act on the answers to ``rnd``; return grants to send and, after a won pre-vote,
         the election round to run next."""
-        acks, higher = self.majority_of(rnd, replies)
+        won, higher = self.tally(rnd, replies)
         self.seen_epoch = max(self.seen_epoch, higher)
-        won = len(acks) >= self.majority
         out: list[Reply] = []
         if self.closed:
             return out, None

@@ -219,7 +219,7 @@ class GroupHost:
                 except ProtocolError:
                     self.bad_messages += 1
                     continue
-                if len(self.core.majority_of(rnd, got)[0]) >= self.core.majority:
+                if self.core.tally(rnd, got)[0]:
                     break
         except Exception as e:  # session closed or cut off: the round simply fails
             log.debug("sync %s: vote round failed: %s", self.group, e)

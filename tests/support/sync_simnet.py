@@ -245,12 +245,16 @@ class SimDisk:
 
 
 class SimHost(Proc):
-    """A host of the group: a :class:`GroupCore`, driven as ``GroupHost`` drives it."""
+    """A host of the group: a :class:`GroupCore`, driven as ``GroupHost`` drives it.
+
+    ``durable``: its voter keeps its promise on a :class:`SimDisk` across restarts.
+    """
+
+    durable = True
 
     def __init__(self, sim: Sim, name: str, hosts: list[str], clock: SimClock) -> None:
         super().__init__(sim, name, clock)
         self.hosts = hosts
-        self.durable = True
         self.disk = SimDisk()  # what survives a restart (unless wiped)
         self.core = self._new_core()
         self._round: Round | None = None
@@ -258,7 +262,8 @@ class SimHost(Proc):
         self._replies: list[VoteReply] = []
         self._sleeping = False
         self._wake_id = 0
-        self.granted: list[tuple[int, int, str]] = []  # (epoch, token, holder) of each grant
+        # (epoch, token, holder, incarnation) of each grant
+        self.granted: list[tuple[int, int, str, int]] = []
         self.after(0.0, self._runner)
 
     def _new_core(self) -> GroupCore:
@@ -352,7 +357,7 @@ class SimHost(Proc):
         if inc != self.incarnation or rid != self._round_id or self._round is None:
             return
         self._replies.append(reply)
-        if len(self.core.majority_of(self._round, self._replies)[0]) >= self.core.majority:
+        if self.core.tally(self._round, self._replies)[0]:
             self._round_over(rid)
 
     def _round_over(self, rid: int) -> None:
@@ -381,7 +386,7 @@ class SimHost(Proc):
             if payload is None:
                 continue
             rep = GrantReply.decode(payload)
-            self.granted.append((rep.epoch, rep.token, client.name))
+            self.granted.append((rep.epoch, rep.token, client.name, self.incarnation))
             self.sim.send(
                 self.name, client.name, rep, lambda c=client, a=attempt, r=rep: c.on_grant(r, a)
             )

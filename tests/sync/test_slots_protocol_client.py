@@ -5,7 +5,7 @@ from __future__ import annotations
 import msgpack
 import pytest
 from hera.sync import clock
-from hera.sync.client import Grant, SlotLost, run_in_slot, slot_duration
+from hera.sync.client import Grant, KnownTerms, SlotLost, Turn, run_in_slot, slot_duration
 from hera.sync.protocol import (
     AcquireRequest,
     GrantReply,
@@ -117,6 +117,7 @@ def test_clear_returns_every_held_request():
         VoteRequest(3, "s1", probe=True),
         VoteReply("s2", True, 3, "s1"),
         AcquireRequest("s1/sonar", 0.0625, 1.0),
+        AcquireRequest("s1/sonar", 0.0625, 1.0, 4, "s2"),
         GrantReply(3, (3 << 32) | 7, 0.07, "s1"),
         Release(3, (3 << 32) | 7, "s1/sonar", False),
     ],
@@ -141,6 +142,15 @@ def test_messages_round_trip(msg):
 def test_bad_vote_requests_are_rejected_clearly(payload):
     with pytest.raises(ProtocolError):
         VoteRequest.decode(payload)
+
+
+def test_an_acquire_without_the_known_term_decodes_as_knowing_nothing():
+    req = AcquireRequest.decode(msgpack.packb({"h": "a", "d": 0.01, "t": 1.0}))
+    assert (req.known_epoch, req.known_leader) == (0, "")
+    with pytest.raises(ProtocolError, match="'k' must be an int >= 0"):
+        AcquireRequest.decode(msgpack.packb({"h": "a", "d": 0.01, "t": 1.0, "k": -1}))
+    with pytest.raises(ProtocolError, match="'kl' has the wrong type"):
+        AcquireRequest.decode(msgpack.packb({"h": "a", "d": 0.01, "t": 1.0, "kl": 3}))
 
 
 def test_bad_acquire_and_grant_are_rejected():
@@ -190,12 +200,83 @@ def test_a_step_that_finds_its_slot_gone_at_the_trigger_gives_it_back_unused():
     late = []
     c.note_late = late.append
 
-    def trigger(g):
-        raise SlotLost  # e.g. a GIL switch between run_in_slot's check and the trigger
+    def trigger(turn):
+        raise SlotLost  # what turn.check_at_trigger() raises when the sound no longer fits
 
     fired, result, grant = run_in_slot(c, "g", "n/m", 0.01, trigger, timeout=1.0)
     assert (fired, result) == (False, None) and grant.token == 7
     assert c.released == [(7, False)] and late == [grant]
+
+
+class FakeClock:
+    def __init__(self, t: float = 100.0) -> None:
+        self.t = t
+        self.slept: list[float] = []
+
+    def __call__(self) -> float:
+        return self.t
+
+    def sleep(self, s: float) -> None:
+        self.slept.append(s)
+        self.t += s
+
+
+def test_turn_checks_at_the_trigger_and_the_sound_starts_at_that_reading():
+    clock = FakeClock()
+    g = Grant("g", "h", 3, 9, duration=0.05, asked_at=100.0, leader="x")
+    turn = Turn(g, 0.02, clock)
+    assert (turn.epoch, turn.token, turn.ends_at) == (3, 9, None)
+    clock.t = 100.031  # a pause since the grant: 0.031 + 0.02 > 0.05
+    with pytest.raises(SlotLost):
+        turn.check_at_trigger()
+    assert turn.fired_at is None
+    clock.t = 100.03
+    reading = turn.check_at_trigger(wall=lambda: 1.7e9, lasts=0.015)
+    assert reading.clock == 100.03 and reading.wall == 1.7e9
+    assert turn.ends_at == pytest.approx(100.045)
+    with pytest.raises(RuntimeError, match="one trigger per turn"):
+        turn.check_at_trigger()
+    with pytest.raises(ValueError, match="does not fit the 0.02 s slot"):
+        Turn(g, 0.02, clock).check_at_trigger(lasts=0.03)
+    assert Turn(g, 0.001, clock).fire(lambda r: r.clock * 2) == pytest.approx(200.06)
+
+
+def test_run_in_slot_releases_only_after_the_sound_has_ended():
+    clock = FakeClock()
+    released_at = []
+
+    class Client(FakeClient):
+        def acquire(self, group, holder, duration, timeout):
+            return Grant(group, holder, 1, 7, duration, clock.t, "x")
+
+        def release(self, grant, used):
+            released_at.append((clock.t, used))
+
+    def driver(turn):  # triggers, returns at once (a driver that does not block)
+        turn.check_at_trigger()
+        return "ok"
+
+    fired, result, _ = run_in_slot(Client(0.0), "g", "h", 0.02, driver, 1.0, clock, clock.sleep)
+    assert (fired, result) == (True, "ok")
+    assert released_at == [(pytest.approx(100.02), True)] and clock.slept
+
+
+def test_known_terms_refuse_older_and_reused_terms():
+    k = KnownTerms()
+    assert k.get("g") == (0, "") and k.accept("g", 2, "a")
+    assert k.accept("g", 2, "a") and k.accept("g", 3, "b")
+    assert not k.accept("g", 2, "a")  # older
+    assert not k.accept("g", 3, "c")  # the same epoch from another leader: reused
+    assert k.get("g") == (3, "b") and k.get("other") == (0, "")
+
+
+def test_the_sync_clock_counts_suspend_where_the_platform_allows():
+    import sys
+
+    if sys.platform.startswith("linux"):
+        assert clock.NAME == "CLOCK_BOOTTIME" and clock.COUNTS_SUSPEND
+    a, b = clock.now(), clock.now()
+    assert b >= a
 
 
 def test_run_in_slot_without_a_grant_and_with_a_failing_step():
