@@ -184,7 +184,7 @@ class Node:
             from hera.plugins import service_factories
 
             self._factories = service_factories()
-        ctx = ServiceContext(self.session, self.keys, self.name, self.spec)
+        ctx = ServiceContext(self.session, self.keys, self.name, self.spec, self.state_dir)
         for name, factory in self._factories.items():
             service = factory(ctx)
             service.start()

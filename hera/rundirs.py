@@ -4,7 +4,8 @@
   ``hera up``), and ``hera-run/<cluster>`` becomes a link to the latest one, so
   ``hera eval hera-run/train`` scores the last run;
 - :func:`prepare_run_dir`: a run directory given by hand must be new or empty; one that
-  holds a previous run is refused unless ``overwrite`` (then it is emptied first);
+  holds a previous run is refused unless ``overwrite`` (then its records are deleted first,
+  but not its ``state/``: the nodes' persisted args, which a new run of the cluster keeps);
 - :func:`state_dir`: the replicated args each node persists (calibrations) live beside the
   runs, in ``hera-run/<cluster>.state/``, so a new run of the same cluster keeps them; a run
   directory given by hand keeps its state inside it (``<run-dir>/state``).
@@ -51,7 +52,8 @@ def new_run_dir(cluster: str, base: Path = BASE, now: float | None = None) -> Pa
 
 def prepare_run_dir(path: Path, overwrite: bool = False) -> Path:
     """``path`` made ready for a new run: it must not exist, be empty, or (with
-    ``overwrite``) hold a previous run, which is deleted. RunDirError otherwise."""
+    ``overwrite``) hold a previous run, whose records are deleted (its ``state/`` is
+    kept). RunDirError otherwise."""
     path = Path(path)
     if path.is_symlink():
         path = path.resolve()
@@ -67,7 +69,13 @@ def prepare_run_dir(path: Path, overwrite: bool = False) -> Path:
                 f"run directory {path} holds a previous run: give another --run-dir, leave it "
                 "out for a new one, or add --overwrite to replace it"
             )
-        shutil.rmtree(path)
+        for entry in path.iterdir():
+            if entry.name == "state":
+                continue
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
     path.mkdir(parents=True, exist_ok=True)
     return path.resolve()
 

@@ -324,13 +324,14 @@ def test_down_from_another_terminal_stops_the_cluster(cluster, tmp_path):
 
 def test_whole_cluster_restart_keeps_the_args_without_recalibrating(cluster, tmp_path):
     """Args are persisted under each node's state dir: a second run of the whole cluster in
-    the same run dir finds every calibration and calibrates nothing again."""
+    the same run dir (``--overwrite``: the records go, the state stays) finds every
+    calibration and calibrates nothing again."""
     spec = five_nodes(tmp_path).replace('name = "five"', 'name = "again"')
     first = cluster(spec, name="run")
     wait_for(lambda: len(first.control("n1", "args", {})["args"]) == 5, 10, "5 calibrations")
     first.stop()
     assert len((tmp_path / "calib.log").read_text().splitlines()) == 5
-    second = cluster(spec, name="run")  # same run dir: same state dirs
+    second = cluster(spec, name="run", overwrite=True)  # a new run, the same state dirs
     wait_for(lambda: seen_everywhere(second), 10, "the second run settled")
     assert len((tmp_path / "calib.log").read_text().splitlines()) == 5
     assert len(second.control("n3", "args", {})["args"]) == 5

@@ -46,7 +46,14 @@ def _descendants(pid: int) -> list[int]:
 class Cluster:
     """A ``hera up`` launcher process and the client to talk to its nodes."""
 
-    def __init__(self, spec: Path, run_dir: Path, env: dict[str, str], duration: float | None):
+    def __init__(
+        self,
+        spec: Path,
+        run_dir: Path,
+        env: dict[str, str],
+        duration: float | None,
+        overwrite: bool = False,
+    ):
         self.run_dir = run_dir
         cmd = [
             sys.executable,
@@ -61,6 +68,8 @@ class Cluster:
         ]
         if duration is not None:
             cmd += ["--duration", str(duration)]
+        if overwrite:
+            cmd.append("--overwrite")
         self.out = open(run_dir.parent / f"{run_dir.name}-launcher.log", "w")  # noqa: SIM115
         self.proc = subprocess.Popen(cmd, env=env, stdout=self.out, stderr=subprocess.STDOUT)
         self.client = None
