@@ -221,6 +221,11 @@ def _dispatch(args: argparse.Namespace) -> int:
     raise AssertionError(args.cmd)
 
 
+def _progress(text: str) -> None:
+    """A progress line of a long command (stderr, so that stdout stays the result)."""
+    print(f"  {text} ...", file=sys.stderr, flush=True)
+
+
 def _load(spec_arg: str):
     """The spec a command line names (a file, or an example's name)."""
     from hera.examples import resolve_spec
@@ -352,7 +357,7 @@ def _replay(args: argparse.Namespace) -> int:
         like = live_schedule(args.recordings, args.start_like)
         if not like:
             raise ValueError(f"no live estimates of node {args.start_like!r} in the recordings")
-    counts = replay(args.recordings, args.out, chosen, args.node, like)
+    counts = replay(args.recordings, args.out, chosen, args.node, like, progress=_progress)
     for name, n in counts.items():
         print(f"{name:<20} {n:>7} estimates -> {Path(args.out) / 'measures'}")
     return 0
@@ -367,6 +372,7 @@ def _eval(args: argparse.Namespace) -> int:
 
     options = EvalOptions(after=args.after, settle=args.settle)
     index = AppIndex()
+    _progress(f"scoring the model outputs of {args.run_dir}")
     results = evaluate(args.run_dir, options, index)
     if not results:
         raise ValueError(f"{args.run_dir}: no model outputs to score (no fusion model logged)")
@@ -377,6 +383,7 @@ def _eval(args: argparse.Namespace) -> int:
     if not args.no_plots:
         try:
             out = args.plots or Path(args.run_dir) / "eval"
+            _progress(f"drawing the plots into {out}")
             files = plot(args.run_dir, out, args.node, options, index)
             if not args.json:
                 print("plots: " + (", ".join(str(f) for f in files) or "none"))

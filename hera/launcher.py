@@ -159,8 +159,11 @@ class Launcher:
         if "epoch" not in spec.world:
             spec = spec.with_world(epoch=time.time())
         self.spec: ClusterSpec = spec
+        self.link: Path | None = None
         if run_dir is None:
             self.run_dir = new_run_dir(spec.name)
+            link = self.run_dir.parent / spec.name
+            self.link = link if link.is_symlink() else None
         else:
             self.run_dir = prepare_run_dir(Path(run_dir), overwrite)
         self.state_dir = state_dir(spec.name, self.run_dir, run_dir is not None)
@@ -314,13 +317,17 @@ class Launcher:
 
     def _next_steps(self) -> str:
         """Where the run is and what to run next (printed when the cluster has stopped)."""
-        rel = os.path.relpath(self.run_dir)
-        run = str(self.run_dir) if rel.startswith("..") else rel
+        def short(path: Path) -> str:
+            rel = os.path.relpath(path)
+            return str(path) if rel.startswith("..") else rel
+
+        run = short(self.run_dir)
         if self.failed:
             return f"stopped: {self.failed}; logs in {run}/logs"
         text = f"stopped; the run is in {run}"
         if spec_models(self.spec):
-            text += f"; next: hera eval {run}  (or hera replay {run} --out DIR)"
+            name = short(self.link) if self.link is not None else run
+            text += f"; next: hera eval {name}"
         return text
 
     def _show(self, client: ClusterClient, uptime: float) -> None:

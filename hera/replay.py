@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import shutil
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -69,9 +69,11 @@ def replay(
     models: Mapping[str, tuple[str, Mapping[str, Any]]],
     node: str = "replay",
     like: Mapping[str, tuple[float, set[int]]] | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> dict[str, int]:
     """Run each model (name -> (measure use, model params)) over ``recordings``; write its
-    estimates to ``out``; return the number of estimates per model.
+    estimates to ``out``; return the number of estimates per model. ``progress`` is told
+    what is being done as it goes (one line each).
 
     ``like`` (model name -> (start, instants), see :func:`live_schedule`) makes a replay of
     a live node: each model starts at the live model's first sample and writes estimates
@@ -83,10 +85,13 @@ def replay(
         if not issubclass(cls, FusionMeasure):
             raise ValueError(f"{use!r} is not a fusion model: it cannot be replayed")
         instances[name] = cls.make_model(params, f"model {name!r} ({use})")
+    say = progress or (lambda _text: None)
     inputs = {n for m in instances.values() for n in m.inputs}
+    say(f"reading the recordings of {', '.join(sorted(inputs))} in {recordings}")
     samples = read_recordings(recordings, inputs, known=inputs)
+    say(f"{len(samples)} samples; running {len(instances)} models")
     counts = {}
-    for name, model in instances.items():
+    for i, (name, model) in enumerate(instances.items(), start=1):
         writer = CsvWriter(out, name, node, model.columns)
         t_start, instants = (like or {}).get(name, (float("-inf"), None))
         t_start -= CSV_RESOLUTION_S  # the recordings' times are rounded to the microsecond
@@ -100,6 +105,7 @@ def replay(
             writer.close()
         counts[name] = writer.seq
         write_counters(out, name, node, model_counters(model))
+        say(f"[{i}/{len(instances)}] {name}: {writer.seq} estimates")
     src = Path(recordings) / "cluster.json"
     if src.exists() and Path(out).resolve() != Path(recordings).resolve():
         shutil.copy(src, Path(out) / "cluster.json")  # the world, for hera eval
