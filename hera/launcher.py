@@ -317,6 +317,7 @@ class Launcher:
 
     def _next_steps(self) -> str:
         """Where the run is and what to run next (printed when the cluster has stopped)."""
+
         def short(path: Path) -> str:
             rel = os.path.relpath(path)
             return str(path) if rel.startswith("..") else rel
