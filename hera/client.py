@@ -75,19 +75,78 @@ def find_run_dir(run_dir: str | None, cluster: str | None) -> Path:
 
 
 class ClusterClient:
-    """A peer session joined to a cluster's bus, for status and control queries."""
+    """A session joined to a cluster's bus, for status and control queries.
 
-    def __init__(self, spec: ClusterSpec) -> None:
+    Made from the cluster's spec (a peer meshing with its nodes, through its routers if it
+    has any: what ``hera up`` and tools on the same host use), or with :meth:`connect` from
+    just an endpoint (a client of one node or router: a tool on any host, no run
+    directory needed).
+    """
+
+    def __init__(self, spec: ClusterSpec | None, session: Any = None, cluster: str = "") -> None:
         self.spec = spec
-        self.keys = Keys(spec.name)
-        endpoints = tuple(spec.endpoint(n.name) for n in spec.nodes)
-        self.session = open_session(
-            BusConfig(listen=(f"tcp/{spec.host}:0",), connect=endpoints, lease_ms=spec.lease_ms)
-        )
+        self.cluster = spec.name if spec is not None else cluster
+        self.keys = Keys(self.cluster)
+        if session is None:
+            from hera.topology import tool_endpoints
+
+            assert spec is not None
+            session = open_session(
+                BusConfig(
+                    listen=(f"tcp/{spec.host}:0",),
+                    connect=tool_endpoints(spec),
+                    lease_ms=spec.lease_ms,
+                )
+            )
+        self.session = session
 
     @classmethod
     def from_run_dir(cls, run_dir: str | Path) -> ClusterClient:
         return cls(load_spec(Path(run_dir) / "cluster.json"))
+
+    @classmethod
+    def connect(
+        cls, endpoints: list[str], cluster: str | None = None, timeout: float = 2.0
+    ) -> ClusterClient:
+        """A client session to one of ``endpoints`` (a node or router of the cluster); the
+        cluster is found on the bus when ``cluster`` is not given and only one answers.
+        LookupError when nothing answers or several clusters do."""
+        session = open_session(BusConfig(listen=(), connect=tuple(endpoints), mode="client"))
+        try:
+            if cluster is None:
+                found = set()
+                for sample in query_all(session, "hera/*/ctl/*/status", timeout, complete=False):
+                    found.add(str(sample.key_expr).split("/")[1])
+                if not found:
+                    raise LookupError(f"no cluster answers at {', '.join(endpoints)}")
+                if len(found) > 1:
+                    raise LookupError(
+                        f"several clusters answer at {', '.join(endpoints)} "
+                        f"({', '.join(sorted(found))}): pick one with --cluster NAME"
+                    )
+                cluster = found.pop()
+            return cls(None, session, cluster)
+        except BaseException:
+            session.close()
+            raise
+
+    def launchers(self, timeout: float = 1.0) -> dict[str, dict[str, Any]]:
+        """The state of every launcher running processes of the cluster, by launcher id."""
+        out = {}
+        for sample in query_all(
+            self.session, self.keys.launcher("*", "status"), timeout, complete=False
+        ):
+            with contextlib.suppress(ValueError):
+                reply = json.loads(sample.payload.to_bytes())
+                out[str(sample.key_expr).split("/")[-2]] = reply
+        return out
+
+    def launched(self, timeout: float = 1.0) -> dict[str, dict[str, Any]]:
+        """What the launchers say of each node (pid, state, restarts), by node name."""
+        out: dict[str, dict[str, Any]] = {}
+        for state in self.launchers(timeout).values():
+            out.update(state.get("nodes", {}))
+        return out
 
     def query(
         self, node: str, verb: str, request: dict | None = None, timeout: float = 1.0

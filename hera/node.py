@@ -35,7 +35,7 @@ from typing import Any
 import zenoh
 
 from hera.args import ArgsStore
-from hera.bus import BusConfig, open_session, tcp_endpoint
+from hera.bus import open_session
 from hera.control import EXIT_INJECTED_CRASH, ControlPlane
 from hera.csvlog import CsvLog
 from hera.datapath import DataPath
@@ -49,6 +49,7 @@ from hera.services import NodeService, ServiceContext, ServiceFactory, SlotServi
 from hera.spec import ClusterSpec
 from hera.store import Store
 from hera.supervisor import Child, Supervisor
+from hera.topology import bus_config
 from hera.worker import Worker
 
 log = logging.getLogger("hera.node")
@@ -122,11 +123,8 @@ class Node:
     def start(self) -> None:
         """Join the bus, recover state from peers and start the services and measures."""
         self._select_estimation_backend()
-        me = self.spec.endpoint(self.name)
-        others = [tcp_endpoint(self.spec.host, n.port) for n in self.spec.nodes if n.port]
-        bus = BusConfig(
-            listen=(me,), connect=tuple(e for e in others if e != me), lease_ms=self.spec.lease_ms
-        )
+        bus = bus_config(self.spec, self.name)
+        me = ", ".join(bus.listen) or "no endpoint (a client)"
         try:
             self.session = s = open_session(bus)
         except zenoh.ZError as e:
