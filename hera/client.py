@@ -74,6 +74,20 @@ def find_run_dir(run_dir: str | None, cluster: str | None) -> Path:
     return Path(found[0]["run_dir"])
 
 
+def _open_retrying(cfg: BusConfig, retry_s: float) -> Any:
+    """Open a session; a client that finds no router retries for ``retry_s`` seconds."""
+    import time
+
+    deadline = time.monotonic() + retry_s
+    while True:
+        try:
+            return open_session(cfg)
+        except Exception:
+            if cfg.mode != "client" or time.monotonic() >= deadline:
+                raise
+            time.sleep(0.1)
+
+
 class ClusterClient:
     """A session joined to a cluster's bus, for status and control queries.
 
@@ -83,21 +97,38 @@ class ClusterClient:
     directory needed).
     """
 
-    def __init__(self, spec: ClusterSpec | None, session: Any = None, cluster: str = "") -> None:
+    def __init__(
+        self,
+        spec: ClusterSpec | None,
+        session: Any = None,
+        cluster: str = "",
+        host: str | None = None,
+        retry_s: float = 0.0,
+    ) -> None:
+        """``host``: the address this tool runs on, to join through that host's routers;
+        ``retry_s``: how long to keep trying when no router answers yet (a launcher that has
+        just started its routers)."""
         self.spec = spec
         self.cluster = spec.name if spec is not None else cluster
         self.keys = Keys(self.cluster)
         if session is None:
-            from hera.topology import tool_endpoints
+            from hera.topology import router_endpoints, tool_endpoints
 
             assert spec is not None
-            session = open_session(
-                BusConfig(
+            if spec.routers:  # a client of the routers (of this host, when it has some)
+                cfg = BusConfig(
+                    listen=(),
+                    connect=router_endpoints(spec, host),
+                    lease_ms=spec.lease_ms,
+                    mode="client",
+                )
+            else:  # a peer of the nodes' full mesh
+                cfg = BusConfig(
                     listen=(f"tcp/{spec.host}:0",),
                     connect=tool_endpoints(spec),
                     lease_ms=spec.lease_ms,
                 )
-            )
+            session = _open_retrying(cfg, retry_s)
         self.session = session
 
     @classmethod

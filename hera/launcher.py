@@ -197,6 +197,13 @@ class Launcher:
         self.registry_file = registry_dir() / f"{spec.name}-{os.getpid()}.json"
 
     # -- process management -------------------------------------------------------------
+    def host(self) -> str | None:
+        """The address of the host this launcher runs on (that of its nodes and routers)."""
+        for part in (*self.spec.routers, *self.spec.nodes):
+            if part.name in self.local:
+                return part.host or self.spec.host
+        return None
+
     def _procs(self) -> list[NodeProc]:
         """Every process this launcher runs: the routers first, then the nodes."""
         return [*self.routers.values(), *self.nodes.values()]
@@ -336,7 +343,7 @@ class Launcher:
                 f"cluster {self.spec.name!r}: {len(self.nodes)} nodes{routers}, run dir "
                 f"{self.run_dir}"
             )
-            client = ClusterClient(self.spec)
+            client = ClusterClient(self.spec, host=self.host(), retry_s=15.0)
             client.session.declare_queryable(
                 Keys(self.spec.name).launcher(self.id, "*"), self._on_query, complete=True
             )

@@ -86,6 +86,8 @@ def bus_config(spec: ClusterSpec, name: str) -> BusConfig:
         extra={
             "scouting/multicast/enabled": spec.multicast_scouting,
             "scouting/gossip/enabled": True,
+            "transport/link/tx/queue/congestion_control/block/wait_before_close": spec.lease_ms
+            * 250,
         },
     )
 
