@@ -412,17 +412,14 @@ def linearised_update_numpy(
     else:
         outs = [BlockOutcome(b.label, b.dim, v, True) for b, v in zip(blocks, nis, strict=True)]
 
-    L = _cholesky(S)
-    if L is None:
-        labels = ", ".join(repr(b.label) for b in blocks)
-        raise CovarianceError(f"innovation covariance S of blocks {labels}")
     sequential = method == "sequential" or (method == "auto" and m > 3 and var is not None)
-    Kt = None
+    L = None
     if sequential:
         if var is None:
             raise ValueError("sequential updates need a diagonal R (variances) in every block")
         x_new, P_new = _sequential(x, P, H, y, var, joseph)
     else:
+        L = _joint_factor(S, blocks)
         Kt = _chol_solve(L, G)
         x_new = x + y @ Kt
         P_new = _joseph_numpy(P, H, Kt, G, var, R, joseph)
@@ -430,7 +427,8 @@ def linearised_update_numpy(
         raise CovarianceError("P after update", "non-positive diagonal")
     if not details:
         return x_new, P_new, UpdateResult(outs)
-    if Kt is None:
+    if L is None:  # sequential: the details are those of the equal joint update
+        L = _joint_factor(S, blocks)
         Kt = _chol_solve(L, G)
     w = _lower_solve(L, y)
     log_det = 2.0 * float(np.log(np.diagonal(L)).sum())
@@ -443,6 +441,15 @@ def linearised_update_numpy(
         gaussian_log_likelihood(float(w @ w), log_det, m),
     )
     return x_new, P_new, DetailedResult(outs, det)
+
+
+def _joint_factor(S: np.ndarray, blocks: Sequence[Block]) -> np.ndarray:
+    """The Cholesky factor of the stacked S, or CovarianceError naming the blocks."""
+    L = _cholesky(S)
+    if L is None:
+        labels = ", ".join(repr(b.label) for b in blocks)
+        raise CovarianceError(f"innovation covariance S of blocks {labels}")
+    return L
 
 
 def _fast_single(

@@ -473,6 +473,20 @@ def test_kernels_reject_inconsistent_shapes(numba_kernels):
     assert k.ekf_predict(np.zeros(n + 1), P, P, P, ws, Po) == kn.BAD_SHAPE
     assert k.kf_predict(x, P, P, np.eye(n - 1), ws, np.empty(n), Po) == kn.BAD_SHAPE
     assert k.kf_predict(x, P, P, P, np.empty(2), np.empty(n), Po) == kn.WS_SMALL
+    # the UKF kernels on deviations: OK for consistent shapes, BAD_SHAPE otherwise
+    N = 2 * n + 1
+    Wc = np.full(N, 1.0 / N)
+    D = np.random.default_rng(1).normal(size=(N, n))
+    assert k.ukf_predict_dev(D, Wc, P, Po) == kn.OK
+    assert k.ukf_predict_dev(D[:, :2], Wc, P, Po) == kn.BAD_SHAPE
+    Dy = D[:, :2]
+    ends, thr = np.array([2]), np.array([math.inf])
+    args = (x, P, D, Dy, np.ones(2), np.ones(2), True, ends, thr, Wc)
+    assert k.ukf_update_dev(*args, np.empty(n), np.empty((n, n)), np.empty(1)) == kn.OK
+    assert (
+        k.ukf_update_dev(*args[:4], np.ones(3), *args[5:], np.empty(n), Po, np.empty(1))
+        == kn.BAD_SHAPE
+    )
 
 
 @pytest.mark.parametrize("name", ["numpy", "numba"])
@@ -491,3 +505,50 @@ def test_wrong_jacobian_shapes_raise_clearly(use, name):
     with pytest.raises(ValueError, match="block 'r'"):
         ekf.update(obs)
     assert ekf.x is x0 and ekf.P is P0
+
+
+def test_compiled_paths_do_not_fall_back(use, numba_kernels, monkeypatch):
+    """On the numba backend every ordinary step runs compiled: with the numpy fallbacks
+    made to fail, each kind of block (linear, Jacobian, numerical Jacobian, residual, full
+    R, several blocks, sequential rows) and the UKF with mean/residual functions still
+    update and predict (so the agreement tests above compare two implementations)."""
+    from hera.estimation import angle_residual, circular_mean, make_mean, make_residual
+    from hera.estimation import ukf as ukf_mod
+
+    use("numba")
+
+    def boom(*a, **k):
+        raise AssertionError("numpy fallback used")
+
+    monkeypatch.setattr(corr, "linearised_update_numpy", boom)
+    monkeypatch.setattr(ukf_mod.UnscentedKalmanFilter, "_correct_numpy", boom)
+    rng = np.random.default_rng(9)
+    n = 4
+    for sizes, kinds, full in (
+        ((1,), "H", False),
+        ((2,), "J", True),
+        ((3,), "N", False),
+        ((1,), "W", False),
+        ((2, 1), "HJ", False),
+        ((5,), "H", False),
+    ):
+        kf = KalmanFilter(np.zeros(n), np.eye(n), F=np.eye(n), Q=0.1)
+        kf.predict(0.1)
+        res = kf.update(_obs(rng, n, sizes, kinds, full_R=full))
+        assert res.updated
+    ukf = UnscentedKalmanFilter(
+        np.zeros(n),
+        np.eye(n),
+        f=lambda x, dt, u: x,
+        Q=0.1,
+        x_mean=make_mean(angles=[0]),
+        residual_x=make_residual(angles=[0]),
+    )
+    ukf.predict(0.1)
+    obs = Observations().add(
+        "b", [3.1], h=lambda x: x[:1], R=0.1, mean=circular_mean, residual=angle_residual
+    )
+    assert ukf.update(obs).updated
+    plain = UnscentedKalmanFilter(np.zeros(n), np.eye(n), f=lambda x, dt, u: x, Q=0.1)
+    plain.predict(0.1)
+    assert plain.update(_obs(rng, n, (2, 1), "HJ")).updated
