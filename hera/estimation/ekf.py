@@ -9,14 +9,29 @@ each block's h(x) and Jacobian (or a linear H).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
 from . import backend as _bk
-from .correction import _WS_SMALL, LinearisedFilter, check_dt, process_noise
+from .correction import (
+    _MODE_HX,
+    _WS_SMALL,
+    EMPTY1,
+    LinearisedFilter,
+    _kernel_inputs,
+    _new,
+    _set_outcomes,
+    _tuple_new,
+    as_blocks,
+    check_dt,
+    process_noise,
+)
+from .gating import gate_threshold
 from .numerics import finite, numerical_jacobian
+from .observations import Block, Observations
+from .results import BlockOutcome, UpdateResult
 from .stacking import SCRATCH, grow_scratch
 
 __all__ = ["ExtendedKalmanFilter"]
@@ -25,6 +40,8 @@ _ND = np.ndarray
 _F64 = np.float64
 _empty = np.empty
 _INF = math.inf
+_STEP_PREDICT = -7.0  # kernels_numba.STEP_PREDICT: the step kernel's predict part failed
+_BAD_SHAPE = -5.0
 
 
 class ExtendedKalmanFilter(LinearisedFilter):
@@ -112,6 +129,11 @@ class ExtendedKalmanFilter(LinearisedFilter):
                 if self.history is not None:
                     self.history._predicted(self, dt, Fj)
                 return
+        self._predict_numpy(xn, Fj, Qm, dt)
+
+    def _predict_numpy(self, xn: Any, Fj: np.ndarray, Qm: np.ndarray, dt: float) -> None:
+        """The predict from f(x), its Jacobian and Q on numpy: converts what the kernel
+        could not take and raises the precise error of what it refused."""
         n = self.n
         if type(xn) is not _ND or xn.ndim != 1 or xn.dtype != _F64:
             xn = np.asarray(xn, dtype=_F64).reshape(-1)
@@ -128,5 +150,132 @@ class ExtendedKalmanFilter(LinearisedFilter):
         P *= 0.5
         P += Qm
         if not (finite(xn) and finite(P)):
-            self._diagnose_predict("f(x) or Q")
+            self._diagnose_predict("f(x)")
         self._commit_predict(xn, P, Fj, dt)
+
+    def _propagate(self, dt: float, u: Any, Q: Any) -> tuple[Any, np.ndarray, np.ndarray]:
+        """(f(x), its Jacobian F, Q) for a predict by dt (dt checked, Q converted)."""
+        if not 0.0 <= dt < _INF:
+            check_dt(dt)
+        x = self._x
+        f = self.f
+        jac = self.F
+        if jac is not None:
+            Fj = jac(x, dt, u)
+            if type(Fj) is not _ND:
+                Fj = np.asarray(Fj, dtype=_F64)
+        else:
+            Fj = numerical_jacobian(lambda s: f(s, dt, u), x, self.n, residual=self.residual_x)
+        xn = f(x, dt, u)
+        if Q is None:
+            Qm = self._Q
+            if type(Qm) is not _ND:
+                if dt != self._dt or self._Qdt is None or not self.cache_dt:
+                    self._Qdt = process_noise(Qm(dt), self.n, "Q(dt)")
+                    self._dt = dt
+                Qm = self._Qdt
+        else:
+            Qm = process_noise(Q, self.n, "Q")
+        return xn, Fj, Qm
+
+    def step(
+        self,
+        dt: float,
+        obs: Observations | Sequence[Block] | Block | None,
+        u: Any = None,
+        *,
+        gate: float | None = ...,  # type: ignore[assignment]
+        Q: Any = None,
+    ) -> UpdateResult:
+        """``predict(dt, u, Q=Q)`` then ``update(obs, gate)``, the same results and errors
+        (and x_prior/P_prior, history), in one compiled call when the numba backend runs
+        and obs is one block the kernel takes (the usual fusion step: one sensor sample);
+        else the two calls."""
+        xn, Fj, Qm = self._propagate(dt, u, Q)
+        blocks = obs.blocks if type(obs) is Observations else as_blocks(obs)
+        k = _bk._active
+        if k is None or len(blocks) != 1 or type(xn) is not _ND:
+            self._predict_given(k, xn, Fj, Qm, dt)
+            return self.update(blocks, gate)
+        b = blocks[0]
+        m = b.dim
+        if not (m <= 3 or b.var is None):
+            self._predict_given(k, xn, Fj, Qm, dt)
+            return self.update(blocks, gate)
+        if gate is ...:
+            gate = self.gate
+        try:
+            H, z, hx, flags = _step_inputs(b, xn, m)
+        except Exception:  # as the two calls: the predict stands, update raises the error
+            self._predict_given(k, xn, Fj, Qm, dt)
+            return self.update(blocks, gate)
+        thr = _INF if gate is None else gate_threshold(gate, m)
+        n = self.n
+        P_prior = _empty((n, n))
+        x_out = _empty(n)
+        P_out = _empty((n, n))
+        flags |= self._jflag
+        P = self._P
+        noise = b.noise
+        try:
+            nis = k.ekf_step(
+                xn, P, Fj, Qm, H, z, hx, noise, thr, flags, SCRATCH[0], P_prior, x_out, P_out
+            )
+            if nis == _WS_SMALL:
+                ws = grow_scratch(max(n * n, 2 * m + 2 * m * m + 3 * n * m))
+                nis = k.ekf_step(
+                    xn, P, Fj, Qm, H, z, hx, noise, thr, flags, ws, P_prior, x_out, P_out
+                )
+        except TypeError:  # a user array of another dtype: the two calls convert it
+            nis = _STEP_PREDICT
+        if nis in (_STEP_PREDICT, _BAD_SHAPE):  # nothing computed: the two calls
+            self._predict_given(k, xn, Fj, Qm, dt)
+            return self.update(blocks, gate)
+        self._x = self.x_prior = xn
+        self._P = self.P_prior = P_prior
+        if self.history is not None:
+            self.history._predicted(self, dt, Fj)
+        if nis < 0.0:  # the update part failed: the numpy path raises the precise error
+            return self.update(blocks, gate)
+        res = _new(UpdateResult)
+        if nis > thr:
+            _set_outcomes(res, [_tuple_new(BlockOutcome, (b.label, m, nis, False, thr))])
+            return res
+        t = None if gate is None else thr
+        _set_outcomes(res, [_tuple_new(BlockOutcome, (b.label, m, nis, True, t))])
+        self._x = self.x_post = x_out
+        self._P = self.P_post = P_out
+        if self.history is not None:
+            self.history._updated(self, res)
+        return res
+
+    def _predict_given(self, k: Any, xn: Any, Fj: np.ndarray, Qm: np.ndarray, dt: float) -> None:
+        """The predict from already evaluated f(x), F and Q (kernel, else numpy)."""
+        if k is not None and type(xn) is _ND:
+            n = self.n
+            P = _empty((n, n))
+            try:
+                status = k.ekf_predict(xn, self._P, Fj, Qm, grow_scratch(n * n), P)
+            except TypeError:
+                status = -1
+            if not status:
+                self._commit_predict(xn, P, Fj, dt)
+                return
+        self._predict_numpy(xn, Fj, Qm, dt)
+
+
+def _step_inputs(b: Block, xn: np.ndarray, m: int) -> tuple[Any, Any, Any, int]:
+    """(H, z, hx, flags) of one block at the predicted state, as ``update`` prepares them
+    for ``lin_update1``."""
+    h = b.h
+    if h is None and b.residual is None:  # linear: the kernel computes z - H xn
+        return b.H, b.z, EMPTY1, b.kflags
+    if b.residual is not None or b.jacobian is None:
+        return _kernel_inputs(b, xn)
+    hx = h(xn)
+    if type(hx) is not _ND:
+        hx = np.asarray(hx, dtype=_F64).reshape(-1)
+    H = b.jacobian(xn)
+    if type(H) is not _ND:
+        H = np.asarray(H, dtype=_F64).reshape(m, -1)
+    return H, b.z, hx, b.kflags | _MODE_HX

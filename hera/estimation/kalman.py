@@ -8,7 +8,7 @@ F, Q (and B) may be functions of dt. Update: the shared linearised correction (s
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -18,16 +18,26 @@ from .correction import (
     _WS_SMALL,
     LinearisedFilter,
     _as_matrix,
+    _new,
+    _set_outcomes,
+    _tuple_new,
+    as_blocks,
     check_dt,
     process_noise,
 )
+from .gating import gate_threshold
 from .numerics import finite
+from .observations import Block, Observations
+from .results import BlockOutcome, UpdateResult
 from .stacking import SCRATCH, grow_scratch
 
 __all__ = ["KalmanFilter"]
 
 MatrixOrFn = np.ndarray | Callable[[float], Any]
 _INF = math.inf
+_empty = np.empty
+_STEP_PREDICT = -7.0  # kernels_numba.STEP_PREDICT: the step kernel's predict part failed
+_BAD_SHAPE = -5.0
 
 
 class KalmanFilter(LinearisedFilter):
@@ -197,3 +207,73 @@ class KalmanFilter(LinearisedFilter):
             return False
         self._commit_predict(x, P, F, dt)
         return True
+
+    def step(
+        self,
+        dt: float,
+        obs: Observations | Sequence[Block] | Block | None,
+        u: Any = None,
+        *,
+        gate: float | None = ...,  # type: ignore[assignment]
+        F: Any = None,
+        Q: Any = None,
+    ) -> UpdateResult:
+        """``predict(dt, u, F=F, Q=Q)`` then ``update(obs, gate)``, the same results and
+        errors (and x_prior/P_prior, history), in one compiled call when the numba backend
+        runs and obs is one linear block (H, no residual) with the filter's own F and Q;
+        else the two calls."""
+        blocks = obs.blocks if type(obs) is Observations else as_blocks(obs)
+        k = _bk._active
+        b = blocks[0] if len(blocks) == 1 else None
+        if (
+            k is None
+            or b is None
+            or u is not None
+            or F is not None
+            or Q is not None
+            or b.h is not None
+            or b.residual is not None
+            or not (b.dim <= 3 or b.var is None)
+            or not 0.0 <= dt < _INF
+        ):
+            self.predict(dt, u, F=F, Q=Q)
+            return self.update(blocks, gate)
+        Fm, Qm, _ = self._cache if dt == self._dt else self._matrices(dt)
+        if gate is ...:
+            gate = self.gate
+        m = b.dim
+        thr = _INF if gate is None else gate_threshold(gate, m)
+        n = self.n
+        x_prior = _empty(n)
+        P_prior = _empty((n, n))
+        x_out = _empty(n)
+        P_out = _empty((n, n))
+        flags = b.kflags | self._jflag
+        H, z, noise, P = b.H, b.z, b.noise, self._P
+        try:
+            nis = k.kf_step(
+                self._x, P, Fm, Qm, H, z, noise, thr, flags, SCRATCH[0], x_prior, P_prior,
+                x_out, P_out,
+            )  # fmt: skip
+            if nis == _WS_SMALL:
+                ws = grow_scratch(max(n * n, 2 * m + 2 * m * m + 3 * n * m))
+                nis = k.kf_step(
+                    self._x, P, Fm, Qm, H, z, noise, thr, flags, ws, x_prior, P_prior,
+                    x_out, P_out,
+                )  # fmt: skip
+        except TypeError:  # pragma: no cover - Block and the filter give float64 arrays
+            nis = _STEP_PREDICT
+        if nis in (_STEP_PREDICT, _BAD_SHAPE):  # nothing computed: the two calls
+            self.predict(dt)
+            return self.update(blocks, gate)
+        self._commit_predict(x_prior, P_prior, Fm, dt)
+        if nis < 0.0:  # the update part failed: the numpy path raises the precise error
+            return self.update(blocks, gate)
+        res = _new(UpdateResult)
+        if nis > thr:
+            _set_outcomes(res, [_tuple_new(BlockOutcome, (b.label, m, nis, False, thr))])
+            return res
+        t = None if gate is None else thr
+        _set_outcomes(res, [_tuple_new(BlockOutcome, (b.label, m, nis, True, t))])
+        self._commit_update(x_out, P_out, res)
+        return res

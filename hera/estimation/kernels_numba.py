@@ -51,6 +51,7 @@ BAD_P = -3
 WS_SMALL = -4  # the scratch array ws is too short: the caller grows it and retries
 BAD_SHAPE = -5  # inconsistent array shapes: the numpy path raises the precise error
 BAD_R = -6  # a variance not in (0, inf): the numpy path raises the precise error
+STEP_PREDICT = -7  # a step kernel's predict part failed (non-finite): nothing is valid
 
 MODE_LINEAR = 0  # flags bits 0-1: innovation y = z - H x
 MODE_HX = 1  # y = z - hx
@@ -346,51 +347,20 @@ def _update_row(x, P, H, z, hx, r, thr, flags, ws, x_out, P_out):
 _update_row = numba.njit(cache=True, error_model="numpy", inline="always")(_update_row)
 
 
-def lin_update1(x, P, H, z, hx, noise, thr, flags, ws, x_out, P_out):
-    """Linearised correction by one block of m rows (joint update, no ``SEQUENTIAL``
-    flag) with NIS gate ``thr``, allocating nothing: every intermediate lives in ``ws``
-    (at least 2 m + 2 m^2 + 3 n m values).
-
-    Steps: y (by the innovation mode), G = H P, S = G H^T + R, S = L L^T (Cholesky),
-    NIS = |L^-1 y|^2 and the gate, K^T = L^-T L^-1 G, x_out = x + K y, then the Joseph form
-    T = P - K G, P_out = T + (K R - T H^T) K^T (or the short form P_out = T), symmetrised.
-
-    Returns the NIS (>= 0): the block was fused and x_out, P_out written iff NIS <= thr.
-    A negative value is a status code (NONFINITE, NOT_PD, BAD_P, BAD_R, BAD_SHAPE,
-    WS_SMALL) as a float. Every shape is checked here, so the caller need not (dtypes and
-    ranks are checked by numba's dispatch against the signature).
-
-    Written as one loop nest without helper calls (each call passing arrays costs
-    reference counting) and with finiteness tested by accumulating v * 0 (NaN iff some v
-    is NaN or inf) instead of a test per value: at n <= 9 both cost more than the algebra.
-    """
+def _update_block(x, P, H, z, hx, noise, thr, flags, ws, x_out, P_out):
+    """The algebra of ``lin_update1`` (shapes and ws already checked): one row on
+    ``_update_row``, several through the Cholesky factor of S. Inlined into the kernels
+    that call it."""
     mode = flags & 3
     diag = (flags & DIAG) != 0
     n = x.shape[0]
     m = H.shape[0]
-    if not (
-        (m > 0)
-        & (H.shape[1] == n)
-        & (z.shape[0] == m)
-        & ((mode != 1) | (hx.shape[0] == m))
-        & (noise.shape[0] == (m if diag else m * m))
-        & (P.shape[0] == n)
-        & (P.shape[1] == n)
-        & (P_out.shape[0] == n)
-        & (P_out.shape[1] == n)
-        & (x_out.shape[0] == n)
-    ):
-        return float(BAD_SHAPE)
-    # Scratch layout, row-major: y (m), w (m), S (m, m), L (m, m), G = H P (m, n),
-    # K^T (m, n), W = K R - T H^T (n, m).
     o_w = m
     o_s = 2 * m
     o_l = o_s + m * m
     o_g = o_l + m * m
     o_k = o_g + m * n
     o_v = o_k + m * n
-    if ws.shape[0] < o_v + n * m:
-        return float(WS_SMALL)
     if m == 1:
         return _update_row(x, P, H, z, hx, noise[0], thr, flags, ws, x_out, P_out)
     bad = 0.0  # stays 0.0 while every value it collects is finite
@@ -512,6 +482,130 @@ def lin_update1(x, P, H, z, hx, noise, thr, flags, ws, x_out, P_out):
     if bad != 0.0:
         return float(BAD_P)
     return nis
+
+
+_update_block = numba.njit(cache=True, error_model="numpy", inline="always")(_update_block)
+
+
+def _update_ws(n, m):
+    """Scratch values ``lin_update1`` needs: y, w (m each), S, L (m^2 each), G, K^T, W."""
+    return 2 * m + 2 * m * m + 3 * n * m
+
+
+_update_ws = numba.njit(cache=True, inline="always")(_update_ws)
+
+
+def lin_update1(x, P, H, z, hx, noise, thr, flags, ws, x_out, P_out):
+    """Linearised correction by one block of m rows (joint update, no ``SEQUENTIAL``
+    flag) with NIS gate ``thr``, allocating nothing: every intermediate lives in ``ws``
+    (at least 2 m + 2 m^2 + 3 n m values).
+
+    Steps: y (by the innovation mode), G = H P, S = G H^T + R, S = L L^T (Cholesky),
+    NIS = |L^-1 y|^2 and the gate, K^T = L^-T L^-1 G, x_out = x + K y, then the Joseph form
+    T = P - K G, P_out = T + (K R - T H^T) K^T (or the short form P_out = T), symmetrised.
+
+    Returns the NIS (>= 0): the block was fused and x_out, P_out written iff NIS <= thr.
+    A negative value is a status code (NONFINITE, NOT_PD, BAD_P, BAD_R, BAD_SHAPE,
+    WS_SMALL) as a float. Every shape is checked here, so the caller need not (dtypes and
+    ranks are checked by numba's dispatch against the signature).
+
+    Written as one loop nest without helper calls (each call passing arrays costs
+    reference counting) and with finiteness tested by accumulating v * 0 (NaN iff some v
+    is NaN or inf) instead of a test per value: at n <= 9 both cost more than the algebra.
+    """
+    mode = flags & 3
+    diag = (flags & DIAG) != 0
+    n = x.shape[0]
+    m = H.shape[0]
+    if not (
+        (m > 0)
+        & (H.shape[1] == n)
+        & (z.shape[0] == m)
+        & ((mode != 1) | (hx.shape[0] == m))
+        & (noise.shape[0] == (m if diag else m * m))
+        & (P.shape[0] == n)
+        & (P.shape[1] == n)
+        & (P_out.shape[0] == n)
+        & (P_out.shape[1] == n)
+        & (x_out.shape[0] == n)
+    ):
+        return float(BAD_SHAPE)
+    # Scratch layout, row-major: y (m), w (m), S (m, m), L (m, m), G = H P (m, n),
+    # K^T (m, n), W = K R - T H^T (n, m).
+    if ws.shape[0] < _update_ws(n, m):
+        return float(WS_SMALL)
+    return _update_block(x, P, H, z, hx, noise, thr, flags, ws, x_out, P_out)
+
+
+def _step_shapes(P, F, Q, H, z, hx, noise, flags, P_prior, x_out, P_out, n):
+    """True when the arrays of a step kernel fit a state of n and a block of H's rows."""
+    m = H.shape[0]
+    diag = (flags & DIAG) != 0
+    return (
+        (m > 0)
+        & (P.shape[0] == n)
+        & (P.shape[1] == n)
+        & (F.shape[0] == n)
+        & (F.shape[1] == n)
+        & (Q.shape[0] == n)
+        & (Q.shape[1] == n)
+        & (H.shape[1] == n)
+        & (z.shape[0] == m)
+        & (((flags & 3) != 1) | (hx.shape[0] == m))
+        & (noise.shape[0] == (m if diag else m * m))
+        & (P_prior.shape[0] == n)
+        & (P_prior.shape[1] == n)
+        & (P_out.shape[0] == n)
+        & (P_out.shape[1] == n)
+        & (x_out.shape[0] == n)
+    )
+
+
+_step_shapes = numba.njit(cache=True, inline="always")(_step_shapes)
+
+
+def ekf_step(xn, P, F, Q, H, z, hx, noise, thr, flags, ws, P_prior, x_out, P_out):
+    """``ekf_predict`` then ``lin_update1`` in one call (``Filter.step``): P_prior = F P F^T
+    + Q with xn = f(x) checked finite, then the block (H, hx evaluated at xn by the caller)
+    fused at (xn, P_prior). Returns the NIS (>= 0; fused iff NIS <= thr) or a status as a
+    float: STEP_PREDICT when the predict part failed (P_prior not valid), any other
+    negative code when the update part did (P_prior valid: the predict stands)."""
+    n = xn.shape[0]
+    m = H.shape[0]
+    if not _step_shapes(P, F, Q, H, z, hx, noise, flags, P_prior, x_out, P_out, n):
+        return float(BAD_SHAPE)
+    if ws.shape[0] < max(n * n, _update_ws(n, m)):
+        return float(WS_SMALL)
+    bad = 0.0
+    for i in range(n):
+        bad += xn[i] * 0.0
+    if _predict_cov(P, F, Q, ws, P_prior, bad) != 0.0:
+        return float(STEP_PREDICT)
+    return _update_block(xn, P_prior, H, z, hx, noise, thr, flags, ws, x_out, P_out)
+
+
+def kf_step(x, P, F, Q, H, z, noise, thr, flags, ws, x_prior, P_prior, x_out, P_out):
+    """``kf_predict`` then ``lin_update1`` of a linear block (y = z - H x_prior) in one
+    call; returns as ``ekf_step`` (x_prior and P_prior valid unless STEP_PREDICT)."""
+    n = x.shape[0]
+    m = H.shape[0]
+    if not (
+        _step_shapes(P, F, Q, H, z, z, noise, flags, P_prior, x_out, P_out, n)
+        & (x_prior.shape[0] == n)
+    ):
+        return float(BAD_SHAPE)
+    if ws.shape[0] < max(n * n, _update_ws(n, m)):
+        return float(WS_SMALL)
+    bad = 0.0
+    for i in range(n):
+        t = 0.0
+        for k in range(n):
+            t += F[i, k] * x[k]
+        bad += t * 0.0
+        x_prior[i] = t
+    if _predict_cov(P, F, Q, ws, P_prior, bad) != 0.0:
+        return float(STEP_PREDICT)
+    return _update_block(x_prior, P_prior, H, z, z, noise, thr, flags & ~3, ws, x_out, P_out)
 
 
 def lin_update(x, P, H, z, hx, noise, ends, thr, flags, x_out, P_out, nis_out):
@@ -933,6 +1027,14 @@ SIGNATURES = {
         _F(_c1, _c2, _r2, _r1, _r1, _r1, _F, _I, _c1, _c1, _c2),
     ],
     "lin_update": [_I(_c1, _c2, _r2, _r1, _r1, _r1, _ri, _r1, _I, _c1, _c2, _c1)],
+    "ekf_step": [
+        _F(_c1, _c2, _c2, _c2, _c2, _c1, _c1, _c1, _F, _I, _c1, _c2, _c1, _c2),
+        _F(_r1, _c2, _r2, _r2, _r2, _r1, _r1, _r1, _F, _I, _c1, _c2, _c1, _c2),
+    ],
+    "kf_step": [
+        _F(_c1, _c2, _c2, _c2, _c2, _c1, _c1, _F, _I, _c1, _c1, _c2, _c1, _c2),
+        _F(_c1, _c2, _r2, _r2, _r2, _r1, _r1, _F, _I, _c1, _c1, _c2, _c1, _c2),
+    ],
     "ukf_sigmas": [_I(_c1, _c2, _F, _c2)],
     "ukf_predict": [_I(_r2, _c1r, _c1r, _r2, _c1, _c2)],
     "ukf_predict_dev": [_I(_r2, _c1r, _r2, _c2)],

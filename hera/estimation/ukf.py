@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from . import backend as _bk
 from .backend import active_kernels
 from .correction import (
     ALL_REJECTED,
@@ -251,7 +252,7 @@ class UnscentedKalmanFilter(FilterState):
                 f"predict: f(sigma points) has shape {Xf.shape}, expected ({2 * n + 1}, {n})"
             )
         Qm = self._q(dt) if Q is None else process_noise(Q, n, "Q")
-        k = active_kernels()
+        k = _bk._active
         x = np.empty(n) if self.x_mean is None else self._mean_x(Xf)
         D = None
         if self.x_mean is not None or self.residual_x is not None:
@@ -265,16 +266,32 @@ class UnscentedKalmanFilter(FilterState):
                 status = k.ukf_predict(Xf, sp.Wm, sp.Wc, Qm, x, P)
             else:
                 status = k.ukf_predict_dev(D, sp.Wc, Qm, P)
-        if status:
+        if status:  # the numpy path (or a kernel that found a non-finite value)
             if D is None:
                 x = sp.Wm @ Xf
                 D = Xf - x
             P = (D.T * sp.Wc) @ D
             P = 0.5 * (P + P.T) + Qm
-        if not (finite(x) and finite(P)):
-            self._diagnose_predict("f(sigma points)")
+            if not (finite(x) and finite(P)):
+                self._diagnose_predict("f(sigma points)")
+        elif D is not None and not finite(x):  # the kernel checked P, x came from x_mean
+            self._diagnose_predict("x_mean(f(sigma points))")
         self._note_repair(delta)
         self._commit_predict(x, P, None, dt)
+
+    def step(
+        self,
+        dt: float,
+        obs: Observations | Sequence[Block] | Block | None,
+        u: Any = None,
+        *,
+        gate: float | None = ...,  # type: ignore[assignment]
+        Q: Any = None,
+    ) -> UpdateResult:
+        """``predict(dt, u, Q=Q)`` then ``update(obs, gate)`` (the user's f and h run between
+        the two, so there is nothing to fuse; the same call as the KF's and EKF's)."""
+        self.predict(dt, u, Q=Q)
+        return self.update(obs, gate)
 
     def _mean_x(self, X: np.ndarray) -> np.ndarray:
         x = np.asarray(self.x_mean(X, self.sigma.Wm), dtype=_F64).reshape(-1)  # type: ignore[misc]
@@ -356,9 +373,11 @@ class UnscentedKalmanFilter(FilterState):
         Ys = [self._measure(b, sig) for b in blocks]
         moments = [self._block_moments(b, Y) for b, Y in zip(blocks, Ys, strict=True)]
         custom = self.residual_x is not None or any(d is not None for d, _ in moments)
-        k = active_kernels()
+        k = _bk._active
         out = None
-        if k is not None and not details:
+        if k is not None and not details and not custom and len(blocks) == 1:
+            out = self._correct_one(k, blocks[0], g, x, P, sig, Ys[0])
+        if k is not None and not details and out is None:
             out = self._correct_compiled(k, blocks, g, x, P, sig, Ys, moments, custom)
         if out is None:
             for b in blocks:
@@ -464,6 +483,37 @@ class UnscentedKalmanFilter(FilterState):
         ll = gaussian_log_likelihood(float(w @ w), log_det, y.shape[0])
         det = UpdateDetails(labels, y, S, Kt.T.copy(), None, ll)
         return x_new, P_new, DetailedResult(outs, det)
+
+    def _correct_one(
+        self,
+        k: Any,
+        b: Block,
+        gate: float | None,
+        x: np.ndarray,
+        P: np.ndarray,
+        sig: np.ndarray,
+        Y: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, UpdateResult] | None:
+        """One block with arithmetic means on ``ukf_update``: the common case, without the
+        stacking of ``_correct_compiled``."""
+        n = self.n
+        sp = self.sigma
+        ends, thr_arr, thr_list = block_layout(gate, b.dim)
+        x_out = np.empty(n)
+        P_out = np.empty((n, n))
+        nis = np.empty(1)
+        status = k.ukf_update(
+            x, P, sig, Y, b.z, b.noise, b.var is not None, ends, thr_arr, sp.Wm, sp.Wc,
+            x_out, P_out, nis,
+        )  # fmt: skip
+        if status < 0:
+            return None
+        v = float(nis[0])
+        t = thr_list[0]
+        result = UpdateResult([make_outcome(b.label, b.dim, v, t is None or v <= t, t)])
+        if status == ALL_REJECTED:
+            return x, P, result
+        return x_out, P_out, result
 
     def _correct_compiled(
         self,
