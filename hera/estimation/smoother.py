@@ -38,6 +38,15 @@ class Smoothed(NamedTuple):
     x: np.ndarray
     P: np.ndarray
 
+    def at(self, t: float, tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+        """(x, P) of the last step at or before time t (within ``tol`` seconds: step times
+        are sums of dt), e.g. the smoothed state behind a filtered estimate written at t.
+        ValueError before the first step."""
+        i = int(np.searchsorted(self.t, t + tol, side="right")) - 1
+        if i < 0:
+            raise ValueError(f"Smoothed.at: t = {t} is before the first step ({self.t[0]})")
+        return self.x[i], self.P[i]
+
 
 def rts_smoother(
     x_post: Any,

@@ -14,6 +14,7 @@ from hera.estimation import (
     KalmanFilter,
     Observations,
     UnscentedKalmanFilter,
+    angle_residual,
     batch_filter,
     make_residual,
     record,
@@ -56,7 +57,7 @@ def _conditional_gaussian(x0, P0, F, Q, H, R, zs):
     cov = np.zeros(((N + 1) * n, (N + 1) * n))
     Pk = [P0]
     C = {}
-    for k in range(1, N + 1):
+    for _ in range(N):
         Pk.append(F @ Pk[-1] @ F.T + Q)
     for i in range(N + 1):
         for j in range(i, N + 1):
@@ -92,6 +93,11 @@ def test_rts_smoother_is_the_exact_conditional_mean(use, name):
     np.testing.assert_allclose(sm.x, xs, rtol=1e-8, atol=1e-10)
     np.testing.assert_allclose(sm.P, Ps, rtol=1e-8, atol=1e-12)
     np.testing.assert_allclose(sm.t, dt * np.arange(len(zs) + 1))
+    x3, P3 = sm.at(0.3)  # 0.1 + 0.1 + 0.1 need not equal 0.3 exactly: within tol
+    assert np.array_equal(x3, sm.x[3]) and np.array_equal(P3, sm.P[3])
+    assert np.array_equal(sm.at(0.349)[0], sm.x[3])
+    with pytest.raises(ValueError, match="before the first step"):
+        sm.at(-1.0)
     # the last smoothed step is the last filtered one; earlier ones are tighter
     np.testing.assert_array_equal(sm.x[-1], hist.x_post[-1])
     assert (
@@ -277,3 +283,61 @@ def test_smoother_refusals():
         rts_smoother(xs, Ps, xs, bad_prior, [None, np.eye(1)])
     with pytest.raises(ValueError, match="no transition matrix"):
         rts_smoother(xs, Ps, xs, Ps, [None, None])
+
+
+def _heading_run(seed):
+    """A heading/turn-rate EKF (heading wrapped by f, gyro at 50 Hz, magnetometer with an
+    angle residual at 10 Hz, jittered dt, a reset midway) recorded while it runs; returns
+    (truth (t, heading, rate), filtered states, history)."""
+    rng = np.random.default_rng(seed)
+
+    def f(x, dt, u):
+        return np.array([wrap_angle(x[0] + x[1] * dt), x[1]])
+
+    def F(x, dt, u):
+        return np.array([[1.0, dt], [0.0, 1.0]])
+
+    ekf = ExtendedKalmanFilter(
+        [0.0, 0.5], np.diag([1.0, 0.5]), f=f, F=F,
+        Q=lambda dt: np.diag([1e-5 * dt, 0.05 * dt]), residual_x=make_residual(angles=[0]),
+        cache_dt=False,
+    )  # fmt: skip
+    t0 = 1000.0
+    hist = record(ekf, t0=t0)
+    t, th, truth, filtered = t0, 0.0, [], []
+    for k in range(1, 1500):
+        dt = 0.02 * (1.0 + 0.2 * rng.uniform(-1, 1))
+        w = 0.8 + 0.2 * math.sin(0.5 * (t - t0))
+        t += dt
+        th = wrap_angle(th + w * dt)
+        obs = Observations().add("gyro", [w + rng.normal(scale=0.05)], H=[[0.0, 1.0]], R=0.0025)
+        if k % 5 == 0:
+            m = wrap_angle(th + rng.normal(scale=0.1))
+            obs.add("mag", [m], H=[[1.0, 0.0]], R=0.01, residual=angle_residual)
+        ekf.step(dt, obs)
+        if k == 700:
+            ekf.reset(ekf.x, ekf.P + np.diag([0.01, 0.0]))  # as a model's re-acquisition does
+        truth.append((t, th, w))
+        filtered.append(ekf.x.copy())
+    return np.array(truth), np.array(filtered), hist
+
+
+def test_smoothing_a_recorded_heading_track_beats_filtering():
+    """Post-processing as ``hera replay --smooth`` does, over 6 seeds: the smoothed
+    heading and rate are closer to the truth than the filtered ones (mean square error
+    over all seeds, after the first 2 s, at most 0.8 times the filter's; measured ~0.5: a
+    single run's heading error is too correlated in time to compare run by run), and the
+    smoothed time axis is the samples' own."""
+    err = {"th_f": 0.0, "th_s": 0.0, "w_f": 0.0, "w_s": 0.0}
+    for seed in range(6):
+        truth, fil, hist = _heading_run(seed)
+        sm = smooth(hist)
+        np.testing.assert_allclose(sm.t[1:], truth[:, 0], rtol=0, atol=1e-9)
+        x, _ = sm.at(truth[500, 0])
+        np.testing.assert_array_equal(x, sm.x[501])
+        smx, fil, tr = sm.x[1:][100:], fil[100:], truth[100:]
+        err["th_f"] += np.mean(wrap_angle(fil[:, 0] - tr[:, 1]) ** 2)
+        err["th_s"] += np.mean(wrap_angle(smx[:, 0] - tr[:, 1]) ** 2)
+        err["w_f"] += np.mean((fil[:, 1] - tr[:, 2]) ** 2)
+        err["w_s"] += np.mean((smx[:, 1] - tr[:, 2]) ** 2)
+    assert err["th_s"] < 0.8 * err["th_f"] and err["w_s"] < 0.8 * err["w_f"], err
