@@ -621,7 +621,7 @@ class LinearisedFilter(FilterState):
                 except TypeError:  # e.g. an integer Jacobian or h(x): numpy converts it
                     nis = -1.0
                 if nis >= 0.0:  # else a status code: the numpy path below decides
-                    # The result built as make_result1 does, without the call.
+                    # The result built in place (tuple.__new__: no call layers).
                     res = _new(UpdateResult)
                     if nis > thr:  # gated out: the state stays as it is
                         _set_outcomes(

@@ -153,8 +153,20 @@ class ExtendedKalmanFilter(LinearisedFilter):
             self._diagnose_predict("f(x)")
         self._commit_predict(xn, P, Fj, dt)
 
-    def _propagate(self, dt: float, u: Any, Q: Any) -> tuple[Any, np.ndarray, np.ndarray]:
-        """(f(x), its Jacobian F, Q) for a predict by dt (dt checked, Q converted)."""
+    def step(
+        self,
+        dt: float,
+        obs: Observations | Sequence[Block] | Block | None,
+        u: Any = None,
+        *,
+        gate: float | None = ...,  # type: ignore[assignment]
+        Q: Any = None,
+    ) -> UpdateResult:
+        """``predict(dt, u, Q=Q)`` then ``update(obs, gate)``, the same results and errors
+        (and x_prior/P_prior, history), in one compiled call when the numba backend runs
+        and obs is one block the kernel takes (the usual fusion step: one sensor sample);
+        else the two calls."""
+        # predict()'s first lines, written out: a call layer costs about what fusing saves
         if not 0.0 <= dt < _INF:
             check_dt(dt)
         x = self._x
@@ -176,22 +188,6 @@ class ExtendedKalmanFilter(LinearisedFilter):
                 Qm = self._Qdt
         else:
             Qm = process_noise(Q, self.n, "Q")
-        return xn, Fj, Qm
-
-    def step(
-        self,
-        dt: float,
-        obs: Observations | Sequence[Block] | Block | None,
-        u: Any = None,
-        *,
-        gate: float | None = ...,  # type: ignore[assignment]
-        Q: Any = None,
-    ) -> UpdateResult:
-        """``predict(dt, u, Q=Q)`` then ``update(obs, gate)``, the same results and errors
-        (and x_prior/P_prior, history), in one compiled call when the numba backend runs
-        and obs is one block the kernel takes (the usual fusion step: one sensor sample);
-        else the two calls."""
-        xn, Fj, Qm = self._propagate(dt, u, Q)
         blocks = obs.blocks if type(obs) is Observations else as_blocks(obs)
         k = _bk._active
         if k is None or len(blocks) != 1 or type(xn) is not _ND:
@@ -204,8 +200,20 @@ class ExtendedKalmanFilter(LinearisedFilter):
             return self.update(blocks, gate)
         if gate is ...:
             gate = self.gate
-        try:
-            H, z, hx, flags = _step_inputs(b, xn, m)
+        h = b.h
+        try:  # the block at the predicted state, as update() prepares it for lin_update1
+            if h is not None and b.jacobian is not None and b.residual is None:
+                hx = h(xn)
+                if type(hx) is not _ND:
+                    hx = np.asarray(hx, dtype=_F64).reshape(-1)
+                H = b.jacobian(xn)
+                if type(H) is not _ND:
+                    H = np.asarray(H, dtype=_F64).reshape(m, -1)
+                z, flags = b.z, b.kflags | _MODE_HX
+            elif h is None and b.residual is None:  # linear: the kernel computes z - H xn
+                H, z, hx, flags = b.H, b.z, EMPTY1, b.kflags
+            else:
+                H, z, hx, flags = _kernel_inputs(b, xn)
         except Exception:  # as the two calls: the predict stands, update raises the error
             self._predict_given(k, xn, Fj, Qm, dt)
             return self.update(blocks, gate)
@@ -262,20 +270,3 @@ class ExtendedKalmanFilter(LinearisedFilter):
                 self._commit_predict(xn, P, Fj, dt)
                 return
         self._predict_numpy(xn, Fj, Qm, dt)
-
-
-def _step_inputs(b: Block, xn: np.ndarray, m: int) -> tuple[Any, Any, Any, int]:
-    """(H, z, hx, flags) of one block at the predicted state, as ``update`` prepares them
-    for ``lin_update1``."""
-    h = b.h
-    if h is None and b.residual is None:  # linear: the kernel computes z - H xn
-        return b.H, b.z, EMPTY1, b.kflags
-    if b.residual is not None or b.jacobian is None:
-        return _kernel_inputs(b, xn)
-    hx = h(xn)
-    if type(hx) is not _ND:
-        hx = np.asarray(hx, dtype=_F64).reshape(-1)
-    H = b.jacobian(xn)
-    if type(H) is not _ND:
-        H = np.asarray(H, dtype=_F64).reshape(m, -1)
-    return H, b.z, hx, b.kflags | _MODE_HX

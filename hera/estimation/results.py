@@ -15,7 +15,6 @@ __all__ = [
     "gaussian_log_likelihood",
     "make_outcome",
     "make_result",
-    "make_result1",
 ]
 
 
@@ -120,14 +119,4 @@ def make_result(outcomes: list[BlockOutcome]) -> UpdateResult:
     """``UpdateResult(outcomes)`` for the hot path (same object, no dataclass ``__init__``)."""
     r = _new(UpdateResult)
     _set_outcomes(r, outcomes)
-    return r
-
-
-def make_result1(
-    label: str, dim: int, nis: float, accepted: bool, threshold: float | None
-) -> UpdateResult:
-    """``UpdateResult([BlockOutcome(label, dim, nis, accepted, threshold)])`` for the
-    one-block hot path: ``make_result([make_outcome(...)])`` with two calls less."""
-    r = _new(UpdateResult)
-    _set_outcomes(r, [_tuple_new(BlockOutcome, (label, dim, nis, accepted, threshold))])
     return r
