@@ -354,9 +354,12 @@ def _joseph_numpy(
     K = Kt.T
     T = P - K @ G
     if joseph:
-        KR = K * var if var is not None else K @ R
-        T = T + (KR - T @ H.T) @ Kt
-    return 0.5 * (T + T.T)
+        W = K * var if var is not None else K @ R
+        W -= T @ H.T
+        T += W @ Kt
+    out = T + T.T
+    out *= 0.5
+    return out
 
 
 def linearised_update_numpy(

@@ -143,14 +143,12 @@ class ExtendedKalmanFilter(LinearisedFilter):
             Fj = Fj.astype(_F64)
         if Fj.shape != (n, n):
             raise ValueError(f"predict: the Jacobian F has shape {Fj.shape}, expected ({n}, {n})")
-        if not finite(Fj):
-            self._diagnose_predict("the Jacobian F")
         P = Fj @ self._P @ Fj.T
         P += P.T  # exact symmetry, then halve and add Q
         P *= 0.5
         P += Qm
-        if not (finite(xn) and finite(P)):
-            self._diagnose_predict("f(x)")
+        if not (finite(xn) and finite(P)):  # a NaN or inf in F shows in P (P_jj > 0) or x
+            self._diagnose_predict("f(x)" if finite(Fj) else "the Jacobian F")
         self._commit_predict(xn, P, Fj, dt)
 
     def step(
