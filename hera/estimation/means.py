@@ -10,12 +10,13 @@ Jacobians difference f or h at two points. With an angle near +-pi or a quaterni
 * ``residual(a, b) -> a - b``: the difference of two vectors, or of each row of a (N, k)
   and one vector b (``residual_x=...`` of the UKF and EKF, ``Observations.add(residual=...)``).
 
-:func:`circular_mean` averages angles about a reference point of the set (the point of
-largest weight, the central sigma point of the UKF): ref + sum_i w_i wrap(a_i - ref), which
-is exactly the arithmetic mean when no point is wrapped, and unlike
-atan2(sum w sin, sum w cos) loses no digits to the large negative weights of small-alpha
-sigma points. :func:`quaternion_mean` aligns every quaternion to the reference's hemisphere,
-averages and normalises (the chordal L2 mean, accurate to second order in the spread).
+:func:`circular_mean` averages angles about the first point of the set (in the UKF the
+central sigma point, the state itself): ref + sum_i w_i wrap(a_i - ref), which is exactly
+the arithmetic mean when no point is wrapped (right for a cloud less than pi wide around
+the first point), and unlike atan2(sum w sin, sum w cos) loses no digits to the large
+negative central weight of small-alpha sigma points (it multiplies a zero difference).
+:func:`quaternion_mean` aligns every quaternion to the first one's hemisphere, averages and
+normalises (the chordal L2 mean, accurate to second order in the spread).
 :func:`make_mean` and :func:`make_residual` build both for vectors that mix plain
 coordinates, angles and quaternions. All of them accept batches (they are marked
 ``vectorized``, so the UKF calls them once on all sigma points).
@@ -49,11 +50,11 @@ def _vectorized(fn: Any) -> Any:
 def circular_mean(angles: Any, weights: Any) -> np.ndarray:
     """Weighted mean of angles in radians, wrapped to (-pi, pi]: ``angles`` (N,) or (N, k)
     (each column averaged), ``weights`` (N,), summing to a non-zero value (1 for sigma
-    points). Computed about the angle of largest |weight| as ref + sum w_i wrap(a_i - ref)
-    / sum w. Returns a float array of shape () or (k,)."""
+    points). Computed about the first row as ref + sum w_i wrap(a_i - ref) / sum w.
+    Returns a float array of shape () or (k,)."""
     a = np.asarray(angles, dtype=np.float64)
     w = np.asarray(weights, dtype=np.float64)
-    ref = a[int(np.argmax(np.abs(w)))]
+    ref = a[0]
     total = float(w.sum())
     if total == 0.0:
         raise ValueError("circular_mean: the weights sum to 0")
@@ -69,11 +70,11 @@ def _align(q: np.ndarray, ref: np.ndarray) -> np.ndarray:
 
 def quaternion_mean(quats: Any, weights: Any) -> np.ndarray:
     """Weighted mean of unit quaternions (N, 4), scalar first: each aligned to the
-    hemisphere of the one of largest |weight| (q and -q are one rotation), weighted sum,
-    normalised. ValueError when the sum vanishes (no meaningful mean)."""
+    hemisphere of the first (q and -q are one rotation), weighted sum, normalised.
+    ValueError when the sum vanishes (no meaningful mean)."""
     q = np.asarray(quats, dtype=np.float64)
     w = np.asarray(weights, dtype=np.float64)
-    ref = q[int(np.argmax(np.abs(w)))]
+    ref = q[0]
     m = w @ _align(q, ref)
     norm = float(np.sqrt(m @ m))
     if not norm > 1e-12 * float(np.abs(w).sum()):

@@ -139,6 +139,19 @@ def test_ukf_heading_state_near_pi(use, name, batched):
     assert abs(run(f).x[0] - got.x[0]) > 1.0
 
 
+def test_circular_mean_keeps_the_digits_of_small_alpha_points():
+    """Sigma points of alpha = 1e-3 (central weight ~ -1e6) straddling pi, symmetric about
+    x = pi - 1e-6: the circular mean is x to roundoff (it is taken about the central point,
+    whose huge weight multiplies a zero difference), while the plain weighted sum of the
+    unwrapped points loses about six digits."""
+    sp = MerweSigmaPoints(1, alpha=1e-3)
+    x = math.pi - 1e-6
+    sig = x + np.array([0.0, 1.0, -1.0]) * sp.scale * 0.5
+    assert float(circular_mean(wrap_angle(sig), sp.Wm)) == pytest.approx(x, abs=1e-15)
+    assert abs(float(sp.Wm @ sig) - x) > 1e-12
+    assert sp.Wm[0] < -1e5
+
+
 def test_quaternion_state_mean_and_residual():
     """The ready quaternion helpers: q and -q average to the same rotation, the residual
     of a quaternion and its negative is zero, other columns stay arithmetic."""
