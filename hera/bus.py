@@ -10,6 +10,7 @@ itself because it connects out to everyone it knows.
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, field
 
 import zenoh
@@ -58,8 +59,18 @@ class BusConfig:
         return cfg
 
 
+_LOGGING = False
+
+
 def open_session(config: BusConfig) -> zenoh.Session:
-    """Open a Zenoh session; the caller must close it (``with`` or ``try/finally``)."""
+    """Open a Zenoh session; the caller must close it (``with`` or ``try/finally``).
+
+    With ``RUST_LOG`` set (e.g. ``RUST_LOG=zenoh=debug``), Zenoh's own log goes to stderr
+    (the node's log file): what its links and routing do, for debugging."""
+    global _LOGGING
+    if not _LOGGING and os.environ.get("RUST_LOG"):
+        zenoh.init_log_from_env_or("error")
+        _LOGGING = True
     return zenoh.open(config.to_zenoh())
 
 

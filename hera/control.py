@@ -5,7 +5,8 @@ Runtime verbs:
 - ``status``: the node's status (:mod:`hera.nodestatus`);
 - ``start`` / ``stop`` ``{"measure"}``: start or stop one of its measures;
 - ``inject`` ``{"fault": "crash" | "hang", "measure"}`` or ``{"fault": "crash_node"}``;
-- ``args``: every replicated arg; ``store`` ``{"name"?}``: the samples its store holds;
+- ``args``: every replicated arg; ``store`` ``{"name"?, "names"?}``: the samples its store
+  holds (of one name, of a list of names, or all);
 - ``shutdown``: stop the node (exit 0).
 
 Applications add verbs through :meth:`hera.application.Application.verbs` (the simulator's
@@ -79,8 +80,13 @@ class ControlPlane:
         if verb == "args":
             return {"args": node.args.items()}
         if verb == "store":
-            name = request.get("name")
-            samples = node.store.snapshot() if name is None else node.store.get(str(name))
+            name, names = request.get("name"), request.get("names")
+            if names is not None:
+                if not isinstance(names, list):
+                    raise ValueError("store 'names' must be a list of names")
+                samples = [s for n in names for s in node.store.get(str(n))]
+            else:
+                samples = node.store.snapshot() if name is None else node.store.get(str(name))
             return {
                 "samples": [
                     {

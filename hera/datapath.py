@@ -2,9 +2,12 @@
 
 - :meth:`DataPath.publish` gives each sample of this node's measures the next seq of its
   (name, node) and puts it on ``data/<name>/<node>``;
-- :meth:`DataPath.on_data` decodes every sample on the bus (:mod:`hera.wire`), offers it to
-  the store (which keeps it only if its seq is newer), records the publish-to-store transit
-  and writes the CSV log when this node logs;
+- :meth:`DataPath.on_data` decodes every sample it subscribed to (:mod:`hera.wire`), offers
+  it to the store (which keeps it only if its seq is newer), records the publish-to-store
+  transit and writes the CSV log when this node logs;
+- :meth:`DataPath.want` subscribes by interest: a node takes only the names its measures
+  read (``"prefix*"`` for a prefix), or everything (a full mirror) when one of them may
+  read anything or the node logs every sender; a store does not grow with the cluster.
 - :meth:`DataPath.on_seq_query` answers ``seq/<name>/<node>`` queries, so a restarted node
   continues its seqs (REFERENCE "Core framework").
 
@@ -17,7 +20,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 import msgpack
@@ -58,26 +61,58 @@ class DataPath:
         self._publishers: dict[str, Any] = {}
         self._session: zenoh.Session | None = None
         self._handles: list[Any] = []
+        self._subs: dict[str, Any] = {}
+        self._wanted: set[str] = set()
+        self._mirror: Any = None
 
     def attach(self, session: zenoh.Session) -> None:
-        """Subscribe to every data key of the cluster and answer seq queries."""
+        """Answer seq queries; samples come in through :meth:`want`."""
         self._session = session
-        self._handles.append(
-            session.declare_subscriber(f"{self.keys.prefix}/data/**", self.on_data)
-        )
         self._handles.append(
             session.declare_queryable(self.keys.seq("*", "*"), self.on_seq_query, complete=True)
         )
 
+    def want(self, names: Iterable[str] | None) -> None:
+        """Take the samples of ``names`` from now on: ``name``, ``prefix*`` (every name
+        starting with it) or ``name/node`` (one sender only); None: every sample of the
+        cluster (a full mirror, which replaces the rest)."""
+        names = None if names is None else tuple(n for n in dict.fromkeys(names))
+        with self._seq_lock:
+            if self._mirror is not None:
+                return
+            if names is None:
+                self._mirror = self._session.declare_subscriber(
+                    f"{self.keys.prefix}/data/**", self.on_data
+                )
+                for sub in self._subs.values():
+                    sub.undeclare()
+                self._subs.clear()
+                return
+            for n in names:
+                if n not in self._wanted:
+                    name, _, node = n.partition("/")
+                    pattern = f"{name[:-1]}$*" if name.endswith("*") else name
+                    key = self.keys.data(pattern, node or "*")
+                    self._subs[n] = self._session.declare_subscriber(key, self.on_data)
+                    self._wanted.add(n)
+
+    @property
+    def interest(self) -> list[str] | None:
+        """The names this node takes (None: every one)."""
+        return None if self._mirror is not None else sorted(self._wanted)
+
     def close(self) -> None:
         """Undeclare subscriptions and publishers (before the session closes)."""
-        for h in (*reversed(self._handles), *self._publishers.values()):
+        subs = [*self._subs.values(), *([self._mirror] if self._mirror is not None else [])]
+        for h in (*subs, *reversed(self._handles), *self._publishers.values()):
             try:
                 h.undeclare()
             except Exception as e:  # a closing session may already have dropped them
                 log.debug("undeclare failed: %s", e)
         self._handles.clear()
         self._publishers.clear()
+        self._subs.clear()
+        self._mirror = None
 
     # -- seqs ---------------------------------------------------------------------------
     def seq(self, name: str) -> int:

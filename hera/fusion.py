@@ -167,6 +167,12 @@ class FusionMeasure(Measure):
         return problems
 
     @classmethod
+    def reads(cls, args: Mapping[str, Any]) -> tuple[str, ...] | None:
+        """The model's inputs (its settings may change them, e.g. a ladder's rung)."""
+        model = dict(args.get("model") or {})
+        return tuple(cls.make_model(model).inputs)
+
+    @classmethod
     def make_model(cls, settings: Mapping[str, Any], where: str = "model") -> Any:
         """A model with these settings (and the fixed ones); ValueError naming the setting
         that is unknown or refused by the model."""

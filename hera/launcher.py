@@ -169,9 +169,9 @@ class Launcher:
         busy = busy_ports(spec, self.local)
         if busy:
             raise SpecError(busy)
-        parts = [*spec.nodes, *spec.routers]
-        if spec.base_port == 0 and not all(p.port or p.listen for p in parts):
-            spec = spec.with_ports(free_ports(spec.host, len(parts)))
+        unset = [p for p in (*spec.nodes, *spec.routers) if not (p.port or p.listen)]
+        if spec.base_port == 0 and unset:
+            spec = spec.with_ports(free_ports(spec.host, len(unset)))
         if "epoch" not in spec.world:
             spec = spec.with_world(epoch=time.time())
         self.spec: ClusterSpec = spec
@@ -416,14 +416,16 @@ class Launcher:
         self.out.flush()
 
     def _panels(self, client: ClusterClient, status: dict) -> list[Panel]:
-        """The applications' panels, from the store of one node (the logging node, which
-        holds every sample, else the first answering)."""
+        """The applications' panels, from what the nodes' stores hold of the measures shown
+        (the logging node's samples first)."""
         if not self.shown or not status:
             return []
         node = self.spec.log_node if self.spec.log_node in status else sorted(status)[0]
         try:
-            reply = client.query(node, "store", {}, timeout=0.5).get(node, {})
-            samples = prefer_node(reply.get("samples", []), node)
+            request = {"names": sorted(self.shown)}
+            replies = client.query("*", "store", request, timeout=0.5)
+            held = [s for r in replies.values() for s in r.get("samples", [])]
+            samples = prefer_node(held, node)
             return estimates_panels(self.shown, samples, self.spec.world, self.index)
         except Exception as e:  # the view must never take the launcher down
             return [Panel(f"estimates: query failed ({e})", ("",))]

@@ -244,12 +244,24 @@ class Measure:
     sync: ClassVar[bool] = False
     slot: ClassVar[float] = 0.05
     columns: ClassVar[tuple[str, ...]] = ()
+    inputs: ClassVar[tuple[str, ...] | None] = None
+    """The publication names this measure reads from the store (``"prefix*"``: every name
+    starting with prefix; ``"name/node"``: one sender's only); ``()`` for none. None (the
+    default): it may read anything, and its node takes every sample of the cluster. See
+    :meth:`reads`."""
     arguments: ClassVar[Table | None] = None
     """The ``args`` this measure takes (a :class:`hera.schema.Table`). When declared, a spec
     giving an unknown or ill-typed argument is refused before any node starts, and
     :meth:`init` receives the arguments converted, with the defaults filled in."""
 
     ctx: MeasureContext
+
+    @classmethod
+    def reads(cls, args: Mapping[str, Any]) -> tuple[str, ...] | None:
+        """The names this measure, with these ``args``, reads from the store (see
+        :attr:`inputs`, which it returns unless overridden): its node subscribes to those
+        only, so a store holds what its measures need and no more."""
+        return cls.inputs
 
     @classmethod
     def check_args(cls, args: Mapping[str, Any], where: str) -> list[str]:

@@ -132,6 +132,8 @@ class Node:
                 raise FatalStart(f"its port {me} is in use by another process") from None
             raise
         self.data.attach(s)
+        if self.data.csv is not None:  # the logging node keeps every sender's samples
+            self.data.want(self.spec.log_names or None)
         self.args = ArgsStore(self.name, s, self.keys, self.state_dir)
         self._handles.append(
             s.liveliness().declare_subscriber(
@@ -201,6 +203,7 @@ class Node:
         cls = find_measure(decl.use)
         spec = decl.resolve(cls)
         args = cls.prepare_args(decl.args)  # the original arguments, reused by every restart
+        self.data.want(cls.reads(args))  # its node takes the samples it reads
         counters: dict[str, float] = {}
         slots = self._slot_service(spec) if spec.sync else None
 

@@ -68,6 +68,7 @@ def node_status(node: Node) -> dict[str, Any]:
             "entries": len(node.store.snapshot()),
             "accepted": node.store.accepted,
             "stale": node.store.stale,
+            "takes": node.data.interest,
         },
         "rejected": dict(data.rejected),
         "last_rejection": data.last_rejection,

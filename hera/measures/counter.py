@@ -33,6 +33,11 @@ class Counter(Measure):
         ],
     )
 
+    @classmethod
+    def reads(cls, args: Mapping[str, Any]) -> tuple[str, ...]:
+        """Every publication whose name starts with its prefix."""
+        return (cls.prepare_args(args)["prefix"] + "*",)
+
     def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
         args = self.prepare_args(args)
         super().init(args, ctx)
