@@ -8,7 +8,8 @@ Modules (one concern each):
   :func:`hera.nodes.world.register_scenario`);
 - :mod:`.driver`: the driver protocols a real ADC or thermocouple amplifier implements;
 - :mod:`.sim`: the simulated boards; :mod:`.boards`: opening them for a node;
-- :mod:`.measures`: the ``sharp_ir`` and ``thermocouple`` measures.
+- :mod:`.measures`: the ``sharp_ir`` and ``thermocouple`` measures; :mod:`.tables`: error
+  models from a measure's ``model`` argument.
 
 The README ("Sharp IR tracking and the plate occupancy grid") lists every model, default
 and source.

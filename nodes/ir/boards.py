@@ -10,7 +10,6 @@ satisfy :class:`~hera.nodes.ir.driver.IrDriver` or
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Mapping
 from typing import Any
 
@@ -25,22 +24,6 @@ from hera.nodes.noise import stable_seed
 from hera.nodes.world import epoch_of, make_scenario
 
 
-def _real(args: Mapping[str, Any], protocol: type) -> Any:
-    """The real driver named by the args ``driver``/``driver_args``, or None."""
-    target = args.get("driver")
-    if target is None:
-        return None
-    module, _, attr = str(target).partition(":")
-    try:
-        cls = getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError, ValueError) as e:
-        raise ValueError(f"driver {target!r} cannot be loaded: {e}") from None
-    board = cls(**dict(args.get("driver_args") or {}))
-    if not isinstance(board, protocol):
-        raise ValueError(f"driver {target!r} does not implement {protocol.__name__}")
-    return board
-
-
 def _open(ctx: MeasureContext, args: Mapping[str, Any], default: str, protocol: type, make):
     name = str(args.get("board") or default)
     bid = registry.board_id(ctx.node, name)
@@ -52,7 +35,8 @@ def _open(ctx: MeasureContext, args: Mapping[str, Any], default: str, protocol: 
                 raise ValueError(f"board {bid!r} is not a {protocol.__name__}")
             return b
         seed = ctx.seed if args.get("seed") is None else int(args["seed"])
-        board = _real(args, protocol) or make(bid, stable_seed(default, ctx.node, name, seed))
+        real = registry.load_driver(args, protocol, protocol.__name__)
+        board = real or make(bid, stable_seed(default, ctx.node, name, seed))
         return boards.register(board, bid)
 
 

@@ -26,10 +26,12 @@ from __future__ import annotations
 import math
 import random
 from collections.abc import Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from hera.nodes.ir.tables import numbers_into
 
 
 @dataclass(frozen=True)
@@ -163,21 +165,8 @@ class ThermocoupleModel:
     @classmethod
     def from_args(cls, table: Any) -> ThermocoupleModel:
         """A model from the measure arg ``model``; ValueError naming a bad field."""
-        table = dict(table or {})
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(table) - names)
-        if unknown:
-            raise ValueError(
-                f"unknown thermocouple model fields {unknown}; known: {', '.join(sorted(names))}"
-            )
-        for k, v in table.items():
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ValueError(
-                    f"thermocouple model field {k!r} must be a finite number, got {v!r}"
-                )
-            if k != "offset_c" and v < 0:
-                raise ValueError(f"thermocouple model field {k!r} must be >= 0, got {v!r}")
-        return replace(cls(), **{k: float(v) for k, v in table.items()})
+        positive = ("noise_c", "resolution_c", "cold_junction_sigma_c", "lag_s")
+        return numbers_into(cls, table, "thermocouple model", positive)
 
     def offset(self, rng: random.Random) -> float:
         """This board's cold-junction offset (degC)."""

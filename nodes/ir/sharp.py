@@ -23,10 +23,11 @@ clamped to the ADC's 0 - 3.3 V and quantised to 12 bits.
 
 from __future__ import annotations
 
-import math
 import random
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 from typing import Any
+
+from hera.nodes.ir.tables import numbers_into
 
 V_REF = 3.3
 """ADC full scale (V): STM32F407 ADC1, 12 bits."""
@@ -105,22 +106,13 @@ class SharpModel:
 
     @classmethod
     def from_args(cls, table: Any) -> SharpModel:
-        """A model from the measure arg ``model``; ValueError naming an unknown field."""
-        table = dict(table or {})
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(table) - names)
-        if unknown:
-            raise ValueError(
-                f"unknown Sharp IR model fields {unknown}; known: {', '.join(sorted(names))}"
-            )
-        for k, v in table.items():
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ValueError(f"Sharp IR model field {k!r} must be a finite number, got {v!r}")
-        model = replace(cls(), **{k: float(v) for k, v in table.items()})
-        for k in ("noise_v", "tail_prob", "tail_scale", "toggle_prob", "no_return_cm"):
-            value = getattr(model, k)
-            if value is not None and value < 0:
-                raise ValueError(f"Sharp IR model field {k!r} must be >= 0, got {value!r}")
+        """A model from the measure arg ``model``; ValueError naming a bad field."""
+        model = numbers_into(
+            cls,
+            table,
+            "Sharp IR model",
+            ("noise_v", "tail_prob", "tail_scale", "toggle_prob", "no_return_cm"),
+        )
         for k in ("tail_prob", "toggle_prob"):
             value = getattr(model, k)
             if value is not None and value > 1:
