@@ -16,10 +16,14 @@ mapping task) of measurement time:
   epochs, clamped to +/- ``clamp`` so that the map can still follow a moved block.
 - **Thermal** (``thermal``: publication names of thermocouples, each sample [degC, x, y]).
   The epoch's mean temperatures, less each sensor's offset from the others over the first
-  ``baseline_s`` (when they agree then to within ``min_spread``: the plate was still even),
-  give the posterior of where the hot block is (:mod:`.thermal`). It is evidence about the
-  plate as it is now, not a new independent measurement each second, so it is not
-  accumulated.
+  ``baseline_s`` seconds, give the posterior of where the hot block is (:mod:`.thermal`).
+  The baseline is a calibration: it assumes the plate is still even then (the lab's
+  procedure: thermocouples at ambient before the block goes down), so no thermal evidence
+  comes before it ends, and offsets spreading by more than ``BASELINE_MAX_SPREAD`` are
+  refused as heat, not offsets (counted ``baseline_refused``). On a plate already warm at
+  the start, set ``baseline_s = 0``: the offsets then count as noise (``tc_noise``). The
+  thermal evidence is the plate as it is now, not a new independent measurement each
+  second, so it is not accumulated.
 - **Fusion** (``use = "both"``): Bayes with independent evidence in log-odds, l = l_IR +
   l_thermal - l_0 with l_0 = 0 (the seed's "Bayesian fusion", where lab 3 used an
   arithmetic sum). The hot block's position is the posterior of the thermal model weighted
@@ -52,6 +56,11 @@ HIT_MARGIN = 0.3
 """A cell is free when its centre lies more than this many cells before the surface."""
 MIN_READINGS = 3
 """Readings a ray needs in an epoch for its median to count."""
+MAX_EMPTY = 10
+"""Mapping epochs without a sample after which the map skips ahead (counted ``skipped``)."""
+BASELINE_MAX_SPREAD = 3.0
+"""degC: thermocouple offsets spreading wider than this are heat, not cold-junction offsets
+(a MAX31855-class amplifier's offset is within +/-2 degC, typically far less)."""
 
 
 def _logit(p: float, what: str) -> float:
@@ -139,29 +148,35 @@ class OccupancyGrid:
         self._thermal: ThermalModel | None = None
         self._outbox: list[tuple[float, list[float]]] = []
         self._last: tuple[float, list[float]] | None = None
-        self._counts = {"maps": 0, "rays": 0, "ir_too_close": 0, "late": 0}
+        self._counts = dict.fromkeys(
+            ("maps", "rays", "ir_too_close", "late", "skipped", "baseline_refused"), 0
+        )
 
     # -- the fusion-model interface -------------------------------------------------------
 
     def process(self, sample: Sample) -> bool:
-        """Take one sample; close every mapping epoch that ended before it. True when a
-        map was made."""
+        """Take one sample (first closing every mapping epoch that ended before it); True
+        when it was taken in, False for a sample older than the current epoch. The maps
+        come out through :meth:`outputs`."""
         if self._t_first is None:
             self._t_first = sample.t
             self._epoch_end = (math.floor(sample.t / self.period) + 1) * self.period
-        made = False
         if sample.t < self._epoch_end - self.period:
             self._counts["late"] += 1
             return False
+        if sample.t >= self._epoch_end + MAX_EMPTY * self.period:  # after a long silence,
+            self._map(self._epoch_end)  # one map, not one per empty second
+            skip = math.floor((sample.t - self._epoch_end) / self.period)
+            self._counts["skipped"] += skip
+            self._epoch_end += skip * self.period
         while sample.t >= self._epoch_end:
             self._map(self._epoch_end)
             self._epoch_end += self.period
-            made = True
         if sample.name in self.laws:
             self._ir(sample)
         elif sample.name in self.tcs:
             self._tc(sample)
-        return made
+        return True
 
     def estimate(self) -> tuple[float, list[float]] | None:
         """The last tile of the latest map (see :meth:`outputs` for all of them)."""
@@ -178,7 +193,7 @@ class OccupancyGrid:
     # -- the map --------------------------------------------------------------------------
 
     def logodds(self) -> np.ndarray:
-        """The current map: l_IR + l_thermal (what ``use`` keeps), clamped."""
+        """The current map: l_IR + l_thermal (the layers ``use`` keeps)."""
         out = np.zeros((self.rows, self.cols))
         if self.use != "thermal":
             out += self.l_ir
@@ -196,7 +211,7 @@ class OccupancyGrid:
                 self._ray(self.laws[name], np.median(np.asarray(readings), axis=0))
         self._done.clear()
         if self.use != "ir":
-            self._thermal_layer()
+            self._thermal_layer(t)
         self._counts["maps"] += 1
         rows = split(self.logodds(), self.cell, self.hot)
         self._outbox.extend((t, r) for r in rows)
@@ -260,24 +275,24 @@ class OccupancyGrid:
 
     def _offsets(self) -> dict[str, float]:
         """Each thermocouple's offset from the others' mean over the baseline window; 0 for
-        all when not every one has a baseline, or when they spread by ``min_spread`` or
-        more then (the plate was already warm: that spread is heat, not offsets)."""
+        all without a baseline, or when they spread more than :data:`BASELINE_MAX_SPREAD`."""
         zero = dict.fromkeys(self.tcs, 0.0)
         if self.baseline_s <= 0 or set(self._baseline) != set(self.tcs):
             return zero
         means = {n: b[0] / b[1] for n, b in self._baseline.items()}
-        if max(means.values()) - min(means.values()) >= self.min_spread:
+        if max(means.values()) - min(means.values()) > BASELINE_MAX_SPREAD:
+            self._counts["baseline_refused"] = 1
             return zero
         mean = sum(means.values()) / len(means)
         return {n: m - mean for n, m in means.items()}
 
-    def _thermal_layer(self) -> None:
+    def _thermal_layer(self, t: float) -> None:
         for name, (total, n) in self._tc_sum.items():
             if n:
                 self._tc_last[name] = total / n
         self._tc_sum.clear()
         names = [n for n in self.tcs if n in self._tc_last]
-        if len(names) < 3:
+        if len(names) < 3 or t - self._t_first < self.baseline_s:  # still calibrating
             return
         offsets = self._offsets()
         if self._thermal is None or self._thermal.sensors.shape[0] != len(names):

@@ -344,15 +344,16 @@ def accuracy(truth, m) -> float:
 @pytest.mark.parametrize("seed", range(4))
 def test_the_map_is_95_percent_right_after_60_s_and_finds_the_hot_block(seed):
     """Default plate, the hot block put down at the start: >= 95 % of the cells right at
-    60 s (measured 98-99 %), and from the moment the heat reached the thermocouples the
-    hot block within one cell in every map (measured: found after 16-33 s)."""
+    60 s (measured 98-99 %); no hot block named until the heat reaches the thermocouples
+    (found after 16-20 s), and from then on within one cell in every map (measured: at
+    most 0.27 cm off)."""
     truth, s = plate({"scenario": "ir_plate"}, seed, 150.0)
     assert accuracy(truth, at(s["fused"], 60.0)) >= 0.95
     scores = APP.score(s["fused"], truth, EvalOptions())
-    assert scores["hot_found_s"] is not None and scores["hot_found_s"] <= 60.0
+    assert scores["hot_found_s"] is not None and 5.0 <= scores["hot_found_s"] <= 60.0
     maps = plate_maps(s["fused"])
-    errs = [hot_error(m[2], truth) for m in maps if m[0] - maps[0][0] >= scores["hot_found_s"] + 5]
-    assert errs and max(errs) <= 1.0, max(errs)
+    errs = [hot_error(m[2], truth) for m in maps if m[2][2] > 0]
+    assert len(errs) >= len(maps) - 61 and max(errs) <= 1.0, max(errs)
 
 
 @pytest.mark.parametrize(
@@ -390,8 +391,10 @@ def test_the_map_holds_across_plate_physics_and_layouts(world):
     """The thermal model knows none of the simulator's constants (its kernel is a 1 mm
     aluminium plate's fin length): half and double the heat loss and diffusivity, other
     layouts, a plate already warm at the start (no offset calibration possible)."""
+    warm = bool(world.get("hot_since_s"))
     for seed in (0, 1):
-        truth, s = plate(world, seed, 120.0 if not world.get("hot_since_s") else 30.0)
+        models = {"fused": OccupancyFused.make_model({"baseline_s": 0.0})} if warm else None
+        truth, s = plate(world, seed, 30.0 if warm else 120.0, models)
         scores = APP.score(s["fused"], truth, EvalOptions())
         assert scores["map_pct"] >= 95.0, scores
         assert scores["hot_err_cm"] is not None and scores["hot_err_cm"] <= 1.0, scores
@@ -431,6 +434,19 @@ def test_the_ir_inverse_model_frees_up_to_the_surface_and_marks_it():
     row = grid.logodds()[4]
     assert (row[:6] < 0).all() and row[6] > 0 and (row[7:] == 0).all()
     assert (np.delete(grid.logodds(), 4, axis=0) == 0).all()
+
+
+def test_a_long_silence_makes_one_map_not_one_per_second():
+    grid = OccupancyGrid(use="ir", ir={"ir_left": SHORT})
+    v = grid.laws["ir_left"].volts(11.0)
+    grid.process(Sample("ir_left", "n", 1, 100.0, 0.0, 100.0, (v, -5.0, 4.5, 0.0)))
+    grid.process(Sample("ir_left", "n", 2, 100.5, 0.0, 100.5, (v, -5.0, 4.5, 0.0)))
+    grid.process(Sample("ir_left", "n", 3, 3700.2, 0.0, 3700.2, (v, -5.0, 4.5, 0.0)))
+    rows = grid.outputs()
+    assert len(rows) == 2 and [t for t, _ in rows] == [101.0, 3700.0]
+    assert grid.counters()["skipped"] == 3599
+    assert not grid.process(Sample("ir_left", "n", 4, 3000.0, 0.0, 3000.0, (v, -5.0, 4.5, 0.0)))
+    assert grid.counters()["late"] == 1
 
 
 def test_the_thermal_posterior_finds_a_source_and_waits_for_heat():
