@@ -9,13 +9,32 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
 from hera.fusion import FusionMeasure
 from hera.models.ir.grid import OccupancyGrid
 from hera.models.ir.tiles import COLUMNS
 from hera.models.ir.tracker import IrTracker
 
 
-class IrTrack(FusionMeasure):
+class _Checked(FusionMeasure):
+    """A fusion measure whose model settings are checked before a node starts: the model
+    is built from them, and what it refuses is reported with the spec's other problems."""
+
+    @classmethod
+    def check_args(cls, args: Mapping[str, Any], where: str) -> list[str]:
+        problems = super().check_args(args, where)
+        model = args.get("model", {})
+        if not problems and isinstance(model, Mapping):
+            try:
+                cls.model_class(**{**model, **cls.model_fixed})
+            except (TypeError, ValueError) as e:
+                problems.append(f"{where}: model: {e}")
+        return problems
+
+
+class IrTrack(_Checked):
     """``ir_track``: [distance cm, velocity cm/s, sigma cm, gated] from raw IR voltages."""
 
     name = "ir_track"
@@ -24,7 +43,7 @@ class IrTrack(FusionMeasure):
     columns = IrTracker.columns
 
 
-class OccupancyFused(FusionMeasure):
+class OccupancyFused(_Checked):
     """``occupancy_grid``: the plate's occupancy from IR and thermocouples (Bayes)."""
 
     name = "occupancy_grid"
@@ -33,7 +52,7 @@ class OccupancyFused(FusionMeasure):
     columns = COLUMNS
 
 
-class OccupancyIr(FusionMeasure):
+class OccupancyIr(_Checked):
     """``occupancy_ir``: the plate's occupancy from the IR scanners alone."""
 
     name = "occupancy_ir"
@@ -42,7 +61,7 @@ class OccupancyIr(FusionMeasure):
     columns = COLUMNS
 
 
-class OccupancyThermal(FusionMeasure):
+class OccupancyThermal(_Checked):
     """``occupancy_thermal``: the plate's occupancy from the thermocouples alone."""
 
     name = "occupancy_thermal"

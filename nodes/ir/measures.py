@@ -28,7 +28,11 @@ _XY = list_of(number(), "[x, y] in cm")
 
 
 def _variant(name: str) -> None:
-    variant(name)
+    try:
+        variant(name)
+    except ValueError:
+        known = ", ".join(f"{p} ({v.alias})" for p, v in VARIANTS.items())
+        raise ValueError(f"must be one of {known}") from None
 
 
 IR_ARGS = Table(

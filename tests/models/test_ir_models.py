@@ -115,6 +115,9 @@ def test_bad_sensor_settings_are_refused_naming_them(kwargs, words):
 def test_bad_tracker_settings_are_refused_through_the_measure(settings, word):
     with pytest.raises(ValueError, match=word):
         IrTrack.make_model(settings)
+    # and before any node starts: the spec check builds the model
+    (problem,) = IrTrack.check_args({"model": settings}, "spec.toml: measure 'ir_track'")
+    assert problem.startswith("spec.toml: measure 'ir_track': model: ") and word in problem
     with pytest.raises(ValueError, match="unknown setting 'speed'"):
         IrTrack.make_model({"speed": 1})
 
@@ -505,3 +508,6 @@ def test_a_large_map_comes_out_as_every_tile_of_every_epoch():
 def test_bad_map_settings_are_refused(settings, word):
     with pytest.raises(ValueError, match=word):
         OccupancyGrid(**settings)
+    if "use" not in settings:  # use is fixed by each measure
+        (problem,) = OccupancyFused.check_args({"model": settings}, "spec")
+        assert word in problem
