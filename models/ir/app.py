@@ -282,7 +282,9 @@ class IrApp(Application):
         last = [(s, maps) for s, maps in last if maps]
         if not last:
             return []
-        fig, axes = plt.subplots(1, len(last), figsize=(4.2 * len(last), 4.4), squeeze=False)
+        fig, axes = plt.subplots(
+            1, len(last), figsize=(3.6 * len(last) + 0.8, 3.9), squeeze=False, layout="constrained"
+        )
         want = truth.at(0.0)
         for ax, (s, maps) in zip(axes[0], last, strict=True):
             t, grid, hot, cell = maps[-1]
