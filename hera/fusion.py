@@ -42,7 +42,9 @@ if TYPE_CHECKING:  # pragma: no cover
 class FusionModel(Protocol):
     """What a fusion model gives. Optionally, ``counters() -> {name: int}``: its diagnostic
     counters (samples rejected, late, ...), shown in ``hera status`` and written by
-    ``hera replay``."""
+    ``hera replay``; and ``outputs() -> [(t, values), ...]``: a model that makes several
+    rows at a time (a map in tiles) hands every row made since the last call there instead
+    of through :meth:`estimate`; a fusion measure publishes them in order, one per step."""
 
     inputs: tuple[str, ...]
     columns: tuple[str, ...]
@@ -59,6 +61,13 @@ def model_counters(model: Any) -> dict[str, int]:
     """The model's diagnostic counters (its ``counters()``), or none."""
     counters = getattr(model, "counters", None)
     return dict(counters()) if callable(counters) else {}
+
+
+def model_outputs(model: Any) -> list[tuple[float, list[float]]] | None:
+    """The rows the model made since the last call (its ``outputs()``), or None when it
+    has no ``outputs`` (its :meth:`~FusionModel.estimate` is its output)."""
+    drain = getattr(model, "outputs", None)
+    return list(drain()) if callable(drain) else None
 
 
 def model_settings(model_class: type) -> tuple[str, ...] | None:
@@ -197,6 +206,7 @@ class FusionMeasure(Measure):
         self._inbox = None
         self._cursor = None
         self._first_t: float | None = None
+        self._outbox: deque[tuple[float, list[float]]] = deque()
         if self.mode == "arrival":
             self._inbox = Inbox(ctx.store, self.model.inputs, args["backlog"])
         else:
@@ -233,6 +243,13 @@ class FusionMeasure(Measure):
                     self._first_t = s.t
                     self._record_start(s.t)
         self._report(len(samples))
+        rows = model_outputs(self.model)
+        if rows is not None:
+            self._outbox.extend(rows)
+            if not self._outbox:
+                return None
+            t, values = self._outbox.popleft()
+            return Reading(values, t)
         est = self.model.estimate() if changed else None
         return None if est is None else Reading(est[1], est[0])
 

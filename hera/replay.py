@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from hera.fusion import FusionMeasure, model_counters, spec_models
+from hera.fusion import FusionMeasure, model_counters, model_outputs, spec_models
 from hera.plugins import find_measure
 from hera.recordings import CsvWriter, read_recordings
 from hera.spec import ClusterSpec
@@ -97,8 +97,13 @@ def replay(
         t_start -= CSV_RESOLUTION_S  # the recordings' times are rounded to the microsecond
         try:
             for s in samples:
-                if s.t >= t_start and s.name in model.inputs and model.process(s):
-                    t, values = model.estimate()
+                if s.t < t_start or s.name not in model.inputs:
+                    continue
+                changed = model.process(s)
+                rows = model_outputs(model)
+                if rows is None:
+                    rows = [model.estimate()] if changed else []
+                for t, values in rows:
                     if instants is None or round(t * 1e6) in instants:
                         writer.write(t, values)
         finally:

@@ -475,7 +475,7 @@ class ScenarioKind:
 
 
 _REGISTRY: dict[str, ScenarioKind] = {}
-EXTRA_SCENARIOS: tuple[str, ...] = ()
+EXTRA_SCENARIOS: tuple[str, ...] = ("hera.nodes.ir.scenarios",)
 """Modules defining more scenarios (each calls :func:`register_scenario` when imported);
 imported on first use of the registry. An application's simulated world adds its module
 here."""
