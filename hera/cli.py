@@ -366,24 +366,26 @@ def _down(args: argparse.Namespace) -> int:
 
 
 def _down_over_the_bus(args: argparse.Namespace) -> int:
-    """Stop a cluster from any host: every launcher stops what it runs, every node that no
-    launcher runs (started by hand) gets ``shutdown``; wait until no node answers."""
+    """Stop a cluster from any host: the nodes no launcher runs (started by hand) get
+    ``shutdown``, then every launcher on the bus is asked at once to stop what it runs
+    (the ones that run routers last: the others' requests travel through them)."""
     with _client(args) as client:
-        launched = client.launched()
-        from hera.bus import query_all
-
-        for lid in client.launchers():
-            list(query_all(client.session, client.keys.launcher(lid, "down"), 2.0, complete=False))
-        for node in sorted(set(client.status(timeout=1.0)) - set(launched)):
+        launchers = client.launchers(timeout=2.0)
+        launched = {n for st in launchers.values() for n in st.get("nodes", {})}
+        for node in sorted(set(client.status(timeout=1.0)) - launched):
             client.query(node, "shutdown", timeout=1.0)
-        deadline = time.monotonic() + 20
-        while time.monotonic() < deadline:
-            if not client.status(timeout=0.5) and not client.launchers(0.5):
-                print(f"cluster {client.cluster} stopped")
-                return 0
-            time.sleep(0.2)
-    print(f"hera down: cluster {client.cluster} keeps answering after 20 s", file=sys.stderr)
-    return 1
+        order = sorted(launchers, key=lambda lid: bool(launchers[lid].get("routers")))
+        pending = [
+            (lid, client.session.get(client.keys.launcher(lid, "down"), timeout=3.0))
+            for lid in order
+        ]  # every request is on its way before the first launcher stops its routers
+        stopping = [lid for lid, replies in pending if any(r.ok for r in replies)]
+    missing = sorted(set(launchers) - set(stopping))
+    if missing:
+        print(f"hera down: launchers {missing} did not answer", file=sys.stderr)
+        return 1
+    print(f"cluster {client.cluster}: {len(stopping)} launchers stopping ({', '.join(stopping)})")
+    return 0
 
 
 def _inject(args: argparse.Namespace) -> int:

@@ -193,6 +193,7 @@ class Launcher:
         self.index = AppIndex()
         self.stopping = threading.Event()
         self.failed: str | None = None
+        self._written: tuple[list, float] = ([], 0.0)
         self._logs: dict[str, IO[bytes]] = {}
         self.registry_file = registry_dir() / f"{spec.name}-{os.getpid()}.json"
 
@@ -310,10 +311,16 @@ class Launcher:
                 reply = {"ok": False, "error": f"unknown launcher verb {verb!r}: status, down"}
             query.reply(Keys(self.spec.name).launcher(self.id, verb), json.dumps(reply))
 
-    def _write_launcher_state(self) -> None:
-        state = self.state()
+    def _write_launcher_state(self, force: bool = False) -> None:
+        """Write ``launcher.json`` when a process changed (pid, state, restarts) or once a
+        second, not at every turn of the loop."""
+        key = [(p.proc.pid if p.proc else None, p.state, p.restarts) for p in self._procs()]
+        now = time.monotonic()
+        if not force and key == self._written[0] and now - self._written[1] < 1.0:
+            return
+        self._written = (key, now)
         tmp = self.run_dir / "launcher.json.tmp"
-        tmp.write_text(json.dumps(state))
+        tmp.write_text(json.dumps(self.state()))
         os.replace(tmp, self.run_dir / "launcher.json")
 
     # -- main loop ----------------------------------------------------------------------
@@ -431,20 +438,23 @@ class Launcher:
             return [Panel(f"estimates: query failed ({e})", ("",))]
 
     def _stop_all(self) -> None:
-        procs = [p.proc for p in reversed(self._procs()) if p.proc is not None]
-        for p in procs:
-            if p.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    p.send_signal(signal.SIGCONT)
-                    p.terminate()
-        deadline = time.monotonic() + self.spec.shutdown_timeout + 3.0
-        for p in procs:
-            try:
-                p.wait(max(0.05, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        """Stop the nodes (SIGTERM, SIGKILL after the shutdown timeout), then the routers,
+        which carry the others' traffic until then."""
+        for group in (self.nodes.values(), self.routers.values()):
+            procs = [p.proc for p in group if p.proc is not None]
+            for p in procs:
+                if p.poll() is None:
+                    with contextlib.suppress(ProcessLookupError):
+                        p.send_signal(signal.SIGCONT)
+                        p.terminate()
+            deadline = time.monotonic() + self.spec.shutdown_timeout + 3.0
+            for p in procs:
+                try:
+                    p.wait(max(0.05, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()
         for np in self._procs():
             np.state = "stopped"
         with contextlib.suppress(OSError):
-            self._write_launcher_state()
+            self._write_launcher_state(force=True)
