@@ -41,6 +41,9 @@ from hera.store import Store
 
 log = logging.getLogger("hera.datapath")
 
+MAX_RATE_HZ = 100_000
+"""No measure publishes faster: a recovered seq above what the node's previous incarnation
+could have published since it started is not its own (a forgery) and is not adopted."""
 REFUSED_ALARM = 10
 """A declared source refused this many times in a row, with nothing accepted in between,
 is reported in the status (``refused_sources``)."""
@@ -76,6 +79,8 @@ class DataPath:
         self.declared = declared
         self.incarnation = new_incarnation() if incarnation is None else incarnation
         self.previous_incarnation: int | None = None
+        self.previous_start: float | None = None
+        """Wall-clock start (epoch s) of the previous incarnation, when known."""
         self._streaks: dict[tuple[str, str], tuple[int, str]] = {}
         self.rejected: dict[str, int] = {}
         self.last_rejection: str | None = None
@@ -160,6 +165,9 @@ class DataPath:
         """Publish one sample of this node's measure ``name`` with the next seq."""
         with self._seq_lock:
             seq = self._seq.get(name, 0) + 1
+            if seq > wire.MAX_SEQ:  # the end of the range: go on as a new incarnation
+                self.incarnation, seq = new_incarnation(), 1
+                self._seq.clear()
             try:
                 payload = wire.encode(
                     seq,
@@ -254,9 +262,13 @@ class DataPath:
         """Ask live peers for the latest seqs of this node's measures and adopt those of
         its previous incarnation (:attr:`previous_incarnation`; none when it is unknown);
         return how many answers were refused as not of that incarnation."""
+        import time
+
         from hera.bus import query_all
 
         refused = 0
+        start = self.previous_start
+        ceiling = None if start is None else (time.time() - start) * MAX_RATE_HZ + 1000
         for sample in query_all(session, self.keys.seq("*", self.node), timeout):
             try:
                 seqs = msgpack.unpackb(sample.payload.to_bytes(), raw=False)
@@ -269,6 +281,8 @@ class DataPath:
                         and len(entry) == 2
                         and self.previous_incarnation is not None
                         and entry[0] == self.previous_incarnation
+                        and isinstance(entry[1], int)
+                        and (ceiling is None or entry[1] <= ceiling)
                     ):
                         mine[name] = entry[1]
                     elif self.previous_incarnation is not None:

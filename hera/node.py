@@ -183,10 +183,11 @@ class Node:
             return
         path = self.state_dir / "incarnation"
         with contextlib.suppress(OSError, ValueError):
-            self.data.previous_incarnation = int(path.read_text())
+            inc, start = path.read_text().split()
+            self.data.previous_incarnation, self.data.previous_start = int(inc), float(start)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".tmp")
-        tmp.write_text(str(self.data.incarnation))
+        tmp.write_text(f"{self.data.incarnation} {self.started_at!r}\n")
         os.replace(tmp, path)
 
     def _recover(self) -> None:

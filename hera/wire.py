@@ -31,7 +31,8 @@ import msgpack
 FORMAT_VERSION = 1
 MAX_PAYLOAD_BYTES = 16 * 1024
 MAX_VALUES = 256
-_MAX_SEQ = 2**63 - 1
+MAX_SEQ = 2**63 - 1
+_MAX_SEQ = MAX_SEQ
 
 
 class WireError(ValueError):
