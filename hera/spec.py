@@ -210,7 +210,8 @@ class ClusterSpec:
     log_node: str | None = setting(
         None,
         NAME,
-        "this node writes `<run-dir>/measures/<name>_<node>.csv` for every sender",
+        "this node writes `<run-dir>/measures/<name>_<node>.csv` for every source the spec "
+        "declares",
         key="node",
         table="logging",
     )
