@@ -218,6 +218,7 @@ def _dispatch(args: argparse.Namespace) -> int:
 
         spec = check_spec(_load(args.spec, args.cert))
         spec.node(args.node)  # an unknown node is a bad command line, before any logging
+        spec = _lone_secret(spec, args.run_dir)
         logging.basicConfig(
             level=args.log_level.upper(),
             format=f"%(asctime)s {args.node} %(name)s %(levelname)s %(message)s",
@@ -298,6 +299,36 @@ def _load(spec_arg: str, cert: str | None = None):
 
     spec = load_spec(resolve_spec(spec_arg))
     return spec if cert is None else spec.with_security(certs=str(Path(cert).resolve()))
+
+
+def _lone_secret(spec, run_dir: str | None):
+    """A node run by hand with authentication on and no credentials (no ``--cert``, no
+    ``[security] certs``, not a ``hera up`` cluster.json) makes its own secret: in its run
+    directory, else in a private temporary folder removed at exit. It can join no other
+    node, which is what it says in its log."""
+    import atexit
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    from hera.security.secret import SECRET_FILE, make_secret
+
+    if not spec.auth or spec.tls or spec.certs or spec.secret:
+        return spec
+    if run_dir is not None:
+        folder = Path(run_dir)
+    else:
+        folder = Path(tempfile.mkdtemp(prefix="hera-node-"))
+        atexit.register(shutil.rmtree, folder, True)
+    path = folder / SECRET_FILE
+    if not path.exists():
+        make_secret(path)
+    logging.getLogger("hera.node").warning(
+        "no cluster credentials given: this node made its own secret (%s) and can join no "
+        "other node; give --cert DIR (made by 'hera certs') to join a cluster",
+        path,
+    )
+    return spec.with_security(secret=str(path.resolve()))
 
 
 def _certs(args: argparse.Namespace) -> int:
