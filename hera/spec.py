@@ -245,8 +245,8 @@ class ClusterSpec:
     access_control: bool = setting(
         True,
         BOOL,
-        "Zenoh access control on every node and router: a node writes only its own keys, "
-        "only the operator uses the control plane",
+        "with `tls`: Zenoh access control on every node and router (a node writes only its "
+        "own keys, only the operator uses the control plane)",
         table="security",
     )
     max_clock_skew_ms: int = setting(

@@ -2,8 +2,9 @@
 
 The foreign client is written from the README's wire format alone: plain ``zenoh`` and
 ``msgpack``, no ``hera`` import in what it sends. It tries every attack of the issue
-against a five-node observer cluster started by ``hera up`` with the defaults (user/password
-authentication from the run's secret, access control); afterwards the logging node's CSV
+against a five-node observer cluster started by ``hera up`` with mutual TLS and access
+control on loopback (``hera certs``, ``--cert``; the default user/password authentication
+is checked in tests/unit/test_security.py); afterwards the logging node's CSV
 logs hold every legitimate sample and none of the forged ones, every node is still up, and
 every refusal is counted in the status with its reason.
 """
@@ -11,9 +12,9 @@ every refusal is counted in the status with its reason.
 from __future__ import annotations
 
 import csv
-import hashlib
-import hmac
 import json
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -31,6 +32,8 @@ period = 10
 [logging]
 node = "n1"
 [security]
+tls = true
+certs = "certs"
 max_names_per_node = 32
 max_open_logs = 8
 {nodes}
@@ -44,19 +47,25 @@ period = 0.1
 NODES = [f"n{i}" for i in range(1, 6)]
 
 
-def password(secret: bytes, identity: str) -> str:
-    """README "Threat model": an identity's password is HMAC-SHA256(secret, identity)."""
-    return hmac.new(secret, identity.encode(), hashlib.sha256).hexdigest()
+CERTS: Path = Path()
 
 
-def foreign(endpoint: str, user: str | None = None, pw: str | None = None) -> zenoh.Session:
-    """A plain Zenoh client of one node (raises when the node refuses the link)."""
+def foreign(endpoint: str, who: str | None = None, folder: Path | None = None) -> zenoh.Session:
+    """A plain Zenoh client of one node, with ``who``'s certificate (raises when the node
+    refuses the link)."""
     cfg = zenoh.Config()
     cfg.insert_json5("mode", '"client"')
     cfg.insert_json5("connect/endpoints", json.dumps([endpoint]))
     cfg.insert_json5("scouting/multicast/enabled", "false")
-    if user is not None:
-        cfg.insert_json5("transport/auth/usrpwd", json.dumps({"user": user, "password": pw}))
+    if who is not None:
+        d = folder or CERTS
+        tls = {
+            "root_ca_certificate": f"{d}/ca.pem",
+            "enable_mtls": True,
+            "connect_private_key": f"{d}/{who}.key",
+            "connect_certificate": f"{d}/{who}.pem",
+        }
+        cfg.insert_json5("transport/link/tls", json.dumps(tls))
     return zenoh.open(cfg)
 
 
@@ -79,6 +88,15 @@ def sec(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("sec")
     spec = tmp / "sec.toml"
     spec.write_text(SPEC.format(nodes="\n".join(f'[[nodes]]\nname = "{n}"' for n in NODES)))
+    global CERTS
+    CERTS = tmp / "certs"
+    made = subprocess.run(
+        [sys.executable, "-m", "hera", "certs", str(spec), "--out", str(CERTS)],
+        env=cluster_env(tmp),
+        capture_output=True,
+        text=True,
+    )
+    assert made.returncode == 0, made.stderr
     c = Cluster(spec, tmp / "run", cluster_env(tmp), None)
     try:
         c.connect(30)
@@ -93,26 +111,39 @@ def sec(tmp_path_factory):
 
 
 def endpoint(c: Cluster, node: str) -> str:
-    return c.client.spec.endpoint(node)
+    """A node's TLS endpoint."""
+    return "tls/" + c.client.spec.endpoint(node).split("/", 1)[1]
 
 
-def test_the_run_secret_is_private_and_without_it_nobody_gets_in(sec):
-    secret_file = sec.run_dir / "secret"
-    assert secret_file.stat().st_mode & 0o777 == 0o600
+def test_without_a_certificate_of_the_cluster_nobody_gets_in(sec, tmp_path):
+    assert (CERTS / "n2.key").stat().st_mode & 0o777 == 0o600
     with pytest.raises(zenoh.ZError):
-        foreign(endpoint(sec, "n1")).close()  # no credentials
+        foreign(endpoint(sec, "n1")).close()  # no certificate
     with pytest.raises(zenoh.ZError):
-        foreign(endpoint(sec, "n1"), "n2", "0" * 64).close()  # a guessed password
-    with pytest.raises(zenoh.ZError):  # the right user, another cluster's secret
-        foreign(endpoint(sec, "n1"), "operator", password(b"x" * 64, "operator")).close()
+        foreign("tcp/" + endpoint(sec, "n1")[4:]).close()  # plain TCP
+    other = tmp_path / "other"
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "hera",
+            "certs",
+            str(CERTS.parent / "sec.toml"),
+            "--out",
+            str(other),
+        ],
+        check=True,
+        capture_output=True,
+    )
+    with pytest.raises(zenoh.ZError):  # the right name, another CA
+        foreign(endpoint(sec, "n1"), "operator", other).close()
 
 
 def test_with_a_nodes_identity_it_cannot_act_as_another_or_run_the_cluster(sec):
-    secret = secret_file_bytes(sec)
     c = sec
     pids = {n: c.pid(n) for n in NODES}
     n3_before = rows(c.run_dir, "obs1", "n3")
-    s = foreign(endpoint(c, "n1"), "n2", password(secret, "n2"))
+    s = foreign(endpoint(c, "n1"), "n2")
     try:
         time.sleep(0.3)
         # publish as another node, with a seq that would have frozen it for good
@@ -143,15 +174,10 @@ def test_with_a_nodes_identity_it_cannot_act_as_another_or_run_the_cluster(sec):
     assert max(rows(c.run_dir, "obs1", "n3")) < 10**6
 
 
-def secret_file_bytes(c: Cluster) -> bytes:
-    return (c.run_dir / "secret").read_text().strip().encode()
-
-
 def test_what_a_node_may_write_of_its_own_is_bounded_refused_and_counted(sec):
     c = sec
-    secret = secret_file_bytes(c)
     before = {n: c.status(n) for n in NODES}
-    s = foreign(endpoint(c, "n1"), "n2", password(secret, "n2"))
+    s = foreign(endpoint(c, "n1"), "n2")
     try:
         time.sleep(0.3)
         # its own key, a huge seq of another incarnation: the real samples go on
@@ -197,8 +223,7 @@ def test_what_a_node_may_write_of_its_own_is_bounded_refused_and_counted(sec):
 
 def test_a_foreign_sample_of_a_stranger_is_not_counted(sec):
     c = sec
-    secret = secret_file_bytes(c)
-    s = foreign(endpoint(c, "n1"), "operator", password(secret, "operator"))
+    s = foreign(endpoint(c, "n1"), "operator")
     try:
         time.sleep(0.3)
         for seq in range(1, 20):
@@ -215,8 +240,7 @@ def test_a_foreign_sample_of_a_stranger_is_not_counted(sec):
 
 def test_a_restarted_node_adopts_no_forged_seq_and_a_wedged_source_shows(sec):
     c = sec
-    secret = secret_file_bytes(c)
-    s = foreign(endpoint(c, "n1"), "operator", password(secret, "operator"))
+    s = foreign(endpoint(c, "n1"), "operator")
     try:
         time.sleep(0.3)
         # the operator (trusted) answers seq queries about n3 with seqs at the end of the

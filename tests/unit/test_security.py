@@ -230,6 +230,7 @@ def test_a_nodes_identity_writes_only_its_own_keys_and_cannot_control(tmp_path, 
             time.sleep(0.3)
         finally:
             n2.close()
+        # the listener identifies the opener of the link in both modes (without TLS only it)
         assert sorted(got) == ["hera/c/args/calib/n2/nav", "hera/c/data/obs1/n2"]
         assert replies == [] and len(status) == 1
         assert asked == ["hera/c/ctl/n1/status"]
