@@ -3,8 +3,13 @@
 The original kept a table replicated by multicall, lost when the whole cluster stopped. Ours:
 
 - ``put(key, value)`` on any node publishes on ``hera/<cluster>/args/<key>``; every node
-  subscribes and keeps the entry with the latest ``(stamp, origin)`` (last writer wins by
-  wall-clock timestamp in ns, ties broken by origin node name, so all replicas agree);
+  subscribes and keeps the entry with the latest ``(stamp, origin)`` (last writer wins,
+  ties broken by origin node name, so all replicas agree);
+- stamps are hybrid logical clocks in ns: a write is stamped ``max(wall clock, the largest
+  stamp seen + 1)``, so a write always wins over what its writer has seen, even when its
+  clock is behind; a stamp further than ``max_skew_ns`` ahead of the receiver's wall clock
+  is refused and counted (``future``), from the bus, from peers and from the state file, so
+  no write from the far future can win forever;
 - every node answers queries on ``hera/<cluster>/args/**`` with all entries it holds, and a
   starting node asks all live peers before it starts its measures (:meth:`recover`);
 - each node persists its entries to ``<state_dir>/args.msgpack`` (written atomically), so a
@@ -42,14 +47,17 @@ class ArgsStore:
         session: Any = None,
         keys: Keys | None = None,
         state_dir: str | os.PathLike | None = None,
+        max_skew_ns: int = 1_000_000_000,
     ) -> None:
         self.node = node
+        self.max_skew_ns = int(max_skew_ns)
+        self._clock = 0
         self._session = session
         self._keys = keys
         self._path = Path(state_dir) / self.FILE if state_dir is not None else None
         self._lock = threading.Lock()
         self._entries: dict[str, tuple[int, str, Any]] = {}
-        self.rejected = 0
+        self.rejected: dict[str, int] = {}
         self._sub = self._queryable = None
         if self._path is not None:
             self._load()
@@ -83,7 +91,8 @@ class ArgsStore:
         value msgpack cannot carry."""
         for chunk in key.split("/"):
             check_chunk(chunk, "args key element")
-        stamp = time.time_ns()
+        with self._lock:
+            stamp = self._clock = max(time.time_ns(), self._clock + 1)
         payload = _pack(stamp, self.node, value)  # fails early on unpackable values
         self._merge(key, stamp, self.node, value)
         if self._session is not None:
@@ -98,10 +107,16 @@ class ArgsStore:
             key = self._key_of(str(sample.key_expr))
             entry = _unpack(sample.payload.to_bytes())
             if key is None or entry is None:
-                self.rejected += 1
+                self._refuse("malformed")
                 continue
             merged += self._merge(key, *entry)
         return merged
+
+    @property
+    def clock(self) -> int:
+        """The largest stamp written or accepted (ns): the next write is stamped above."""
+        with self._lock:
+            return self._clock
 
     def close(self) -> None:
         """Undeclare the subscriber and queryable (the session stays open)."""
@@ -116,8 +131,20 @@ class ArgsStore:
         head = self._keys.args("")
         return key_expr[len(head) :] if key_expr.startswith(head) else None
 
-    def _merge(self, key: str, stamp: int, origin: str, value: Any) -> int:
+    def _refuse(self, why: str) -> None:
         with self._lock:
+            self.rejected[why] = self.rejected.get(why, 0) + 1
+
+    def _future(self, stamp: int) -> bool:
+        return stamp > time.time_ns() + self.max_skew_ns
+
+    def _merge(self, key: str, stamp: int, origin: str, value: Any) -> int:
+        if self._future(stamp):
+            self._refuse("future")
+            log.warning("refused args write %s from %s stamped in the future", key, origin)
+            return 0
+        with self._lock:
+            self._clock = max(self._clock, stamp)
             held = self._entries.get(key)
             if held is not None and (held[0], held[1]) >= (stamp, origin):
                 return 0
@@ -129,8 +156,8 @@ class ArgsStore:
         key = self._key_of(str(sample.key_expr))
         entry = _unpack(sample.payload.to_bytes())
         if key is None or entry is None:
-            self.rejected += 1
-            log.warning("rejected malformed args sample on %s", sample.key_expr)
+            self._refuse("malformed")
+            log.warning("rejected malformed args sample on %s", str(sample.key_expr)[:200])
             return
         self._merge(key, *entry)
 
@@ -149,7 +176,14 @@ class ArgsStore:
         try:
             data = msgpack.unpackb(raw, raw=False)
             for key, (stamp, origin, value) in data.items():
+                if self._future(int(stamp)):
+                    self._refuse("future")
+                    log.error(
+                        "dropping args entry %s of the state file: stamped in the future", key
+                    )
+                    continue
                 self._entries[key] = (int(stamp), str(origin), value)
+                self._clock = max(self._clock, int(stamp))
         except Exception as e:  # a damaged file must not stop the node: peers still have it
             log.error("ignoring unreadable args file %s: %s", self._path, e)
 
@@ -175,7 +209,9 @@ def _unpack(payload: bytes) -> tuple[int, str, Any] | None:
     try:
         msg = msgpack.unpackb(payload, raw=False)
         stamp, origin = msg["ts"], msg["origin"]
-        if not isinstance(stamp, int) or not isinstance(origin, str):
+        if not isinstance(stamp, int) or isinstance(stamp, bool) or not isinstance(origin, str):
+            return None
+        if stamp < 0 or len(origin) > 64:
             return None
         return stamp, origin, msg["value"]
     except Exception:

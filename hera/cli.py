@@ -27,6 +27,7 @@ HELP_EXAMPLES = {
     "replay": "hera replay hera-run/train --out replayed --models e7,e8",
     "eval": "hera eval hera-run/train",
     "bench": "hera bench kalman --quick",
+    "certs": "hera certs deploy/two_hosts.toml --out certs",
     "start": "start with:\n  hera up train            a cluster, its live view\n"
     "  hera eval hera-run/train score the run",
 }
@@ -70,6 +71,8 @@ def _parser() -> argparse.ArgumentParser:
         "--only",
         help="comma-separated nodes and routers to run on this host (default: all of them)",
     )
+    cert_help = "folder made by 'hera certs' (its certificates, or its cluster secret)"
+    up.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
 
     node = _command(
         sub,
@@ -83,6 +86,7 @@ def _parser() -> argparse.ArgumentParser:
     node.add_argument("--state-dir", help="where the node persists its args (calibrations)")
     node.add_argument("--parent-pid", type=int, help="stop when this process is gone")
     node.add_argument("--log-level", default="INFO")
+    node.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
 
     rt = _command(
         sub,
@@ -94,6 +98,18 @@ def _parser() -> argparse.ArgumentParser:
     rt.add_argument("--name", required=True, help="name of the router to run")
     rt.add_argument("--parent-pid", type=int, help="stop when this process is gone")
     rt.add_argument("--log-level", default="INFO")
+    rt.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
+
+    ce = _command(
+        sub,
+        "certs",
+        "make a cluster CA, a certificate per node, router and operator, and the secret",
+        HELP_EXAMPLES["certs"],
+    )
+    ce.add_argument(
+        "spec", help="cluster spec (its nodes' and routers' hosts name the certificates)"
+    )
+    ce.add_argument("--out", required=True, metavar="DIR", help="folder to write them to")
 
     st = _command(
         sub,
@@ -117,6 +133,12 @@ def _parser() -> argparse.ArgumentParser:
             metavar="ENDPOINT",
             help="reach the cluster through this node or router (e.g. tcp/10.0.0.2:7447), "
             "from any host: no run directory needed (repeatable)",
+        )
+        s.add_argument(
+            "--cert",
+            metavar="DIR",
+            help="with --connect: the operator's credentials, a folder made by 'hera certs' "
+            "(default: those of the cluster run from this host)",
         )
 
     ms = _command(
@@ -194,8 +216,9 @@ def _dispatch(args: argparse.Namespace) -> int:
         from hera.node import run_node
         from hera.preflight import check_spec
 
-        spec = check_spec(_load(args.spec))
+        spec = check_spec(_load(args.spec, args.cert))
         spec.node(args.node)  # an unknown node is a bad command line, before any logging
+        spec = _lone_secret(spec, args.run_dir)
         logging.basicConfig(
             level=args.log_level.upper(),
             format=f"%(asctime)s {args.node} %(name)s %(levelname)s %(message)s",
@@ -214,18 +237,21 @@ def _dispatch(args: argparse.Namespace) -> int:
             interval=args.interval,
             overwrite=args.overwrite,
             only=only,
+            cert=args.cert,
         )
         return launcher.run()
     if args.cmd == "router":
         from hera.router import run_router
 
-        spec = _load(args.spec)
+        spec = _load(args.spec, args.cert)
         spec.router(args.name)
         logging.basicConfig(
             level=args.log_level.upper(),
             format=f"%(asctime)s {args.name} %(name)s %(levelname)s %(message)s",
         )
         return run_router(spec, args.name, args.parent_pid)
+    if args.cmd == "certs":
+        return _certs(args)
     if args.cmd == "status":
         return _status(args)
     if args.cmd == "down":
@@ -264,12 +290,58 @@ def _progress(text: str) -> None:
     print(f"  {text} ...", file=sys.stderr, flush=True)
 
 
-def _load(spec_arg: str):
-    """The spec a command line names (a file, or an example's name)."""
+def _load(spec_arg: str, cert: str | None = None):
+    """The spec a command line names (a file, or an example's name), with ``--cert``."""
+    from pathlib import Path
+
     from hera.examples import resolve_spec
     from hera.spec import load_spec
 
-    return load_spec(resolve_spec(spec_arg))
+    spec = load_spec(resolve_spec(spec_arg))
+    return spec if cert is None else spec.with_security(certs=str(Path(cert).resolve()))
+
+
+def _lone_secret(spec, run_dir: str | None):
+    """A node run by hand with authentication on and no credentials (no ``--cert``, no
+    ``[security] certs``, not a ``hera up`` cluster.json) makes its own secret: in its run
+    directory, else in a private temporary folder removed at exit. It can join no other
+    node, which is what it says in its log."""
+    import atexit
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    from hera.security.secret import SECRET_FILE, make_secret
+
+    if not spec.auth or spec.tls or spec.certs or spec.secret:
+        return spec
+    if run_dir is not None:
+        folder = Path(run_dir)
+    else:
+        folder = Path(tempfile.mkdtemp(prefix="hera-node-"))
+        atexit.register(shutil.rmtree, folder, True)
+    path = folder / SECRET_FILE
+    if not path.exists():
+        make_secret(path)
+    logging.getLogger("hera.node").warning(
+        "no cluster credentials given: this node made its own secret (%s) and can join no "
+        "other node; give --cert DIR (made by 'hera certs') to join a cluster",
+        path,
+    )
+    return spec.with_security(secret=str(path.resolve()))
+
+
+def _certs(args: argparse.Namespace) -> int:
+    from hera.security.certs import make_certs
+    from hera.security.credentials import cert_hosts
+
+    spec = _load(args.spec)
+    written = make_certs(args.out, spec.name, cert_hosts(spec))
+    print(f"cluster {spec.name}: CA {args.out}/ca.pem (keep ca.key off the cluster's hosts)")
+    for path in written:
+        print(f"  {path}")
+    print(f"  {args.out}/secret (the cluster secret, for links without TLS)")
+    return 0
 
 
 def _measures(args: argparse.Namespace) -> int:
@@ -307,8 +379,29 @@ def _client(args: argparse.Namespace) -> ClusterClient:
     """The cluster a tool command talks to: through ``--connect`` endpoints (any host), or
     the one registered on this host (``--run-dir``, ``--cluster``, or the only one)."""
     if args.connect:
-        return ClusterClient.connect(args.connect, args.cluster)
+        return ClusterClient.connect(
+            args.connect, args.cluster, credentials=_tool_credentials(args)
+        )
     return ClusterClient.from_run_dir(find_run_dir(args.run_dir, args.cluster))
+
+
+def _tool_credentials(args: argparse.Namespace):
+    """The operator's credentials of a tool run with ``--connect``: from ``--cert DIR``, else
+    those of the cluster this host runs (``--run-dir``, ``--cluster`` or the only one)."""
+    from hera.security.access import OPERATOR
+    from hera.security.credentials import for_operator, for_spec
+    from hera.spec import load_spec
+
+    if args.cert:
+        return for_operator(args.cert, args.connect)
+    try:
+        run_dir = find_run_dir(args.run_dir, args.cluster)
+    except LookupError:
+        raise LookupError(
+            "--connect needs the operator's credentials: give --cert DIR (a folder made by "
+            "'hera certs'), or run it on a host that runs the cluster"
+        ) from None
+    return for_spec(load_spec(run_dir / "cluster.json"), OPERATOR)
 
 
 def _status(args: argparse.Namespace) -> int:

@@ -17,6 +17,8 @@ from typing import Any
 
 from hera.bus import BusConfig, open_session, query_all
 from hera.keys import Keys
+from hera.security.access import OPERATOR
+from hera.security.credentials import Credentials, secured
 from hera.spec import ClusterSpec, load_spec
 
 
@@ -128,7 +130,7 @@ class ClusterClient:
                     connect=tool_endpoints(spec),
                     lease_ms=spec.lease_ms,
                 )
-            session = _open_retrying(cfg, retry_s)
+            session = _open_retrying(secured(spec, OPERATOR, cfg), retry_s)
         self.session = session
 
     @classmethod
@@ -137,12 +139,27 @@ class ClusterClient:
 
     @classmethod
     def connect(
-        cls, endpoints: list[str], cluster: str | None = None, timeout: float = 2.0
+        cls,
+        endpoints: list[str],
+        cluster: str | None = None,
+        timeout: float = 2.0,
+        credentials: Credentials | None = None,
     ) -> ClusterClient:
-        """A client session to one of ``endpoints`` (a node or router of the cluster); the
-        cluster is found on the bus when ``cluster`` is not given and only one answers.
-        LookupError when nothing answers or several clusters do."""
-        session = open_session(BusConfig(listen=(), connect=tuple(endpoints), mode="client"))
+        """A client session to one of ``endpoints`` (a node or router of the cluster),
+        authenticated with ``credentials`` (the operator's, see
+        :func:`hera.security.credentials.for_operator`); the cluster is found on the bus when
+        ``cluster`` is not given and only one answers. LookupError when nothing answers
+        (wrong credentials included) or several clusters do."""
+        cfg = BusConfig(listen=(), connect=tuple(endpoints), mode="client")
+        if credentials is not None:
+            cfg = credentials.secure(cfg)
+        try:
+            session = open_session(cfg)
+        except Exception as e:
+            raise LookupError(
+                f"cannot join the bus at {', '.join(endpoints)}: nothing listens there, or it "
+                f"refused these credentials ({str(e).split(' at ')[0]})"
+            ) from None
         try:
             if cluster is None:
                 found = set()

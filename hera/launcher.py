@@ -45,6 +45,9 @@ from hera.panel import estimates_panels
 from hera.plugins import AppIndex
 from hera.preflight import check_spec
 from hera.rundirs import new_run_dir, prepare_run_dir, state_dir
+from hera.security.access import OPERATOR
+from hera.security.credentials import for_spec
+from hera.security.secret import SECRET_FILE, make_secret
 from hera.spec import ClusterSpec, SpecError, load_spec
 from hera.statusview import render_view
 
@@ -155,8 +158,17 @@ class Launcher:
         interval: float = 1.0,
         overwrite: bool = False,
         only: Sequence[str] | None = None,
+        cert: str | Path | None = None,
     ) -> None:
         spec = check_spec(load_spec(spec_path))
+        if cert is not None:
+            spec = spec.with_security(certs=str(Path(cert).resolve()))
+        if spec.spans_hosts() and (spec.auth or spec.tls) and not spec.certs:
+            raise SpecError(
+                f"{spec.source}: [security]: the spec spans several hosts, which must share "
+                "their credentials: make them with 'hera certs SPEC --out DIR', copy DIR to "
+                "every host and give --cert DIR (or [security] certs = DIR)"
+            )
         names = [n.name for n in spec.nodes] + [r.name for r in spec.routers]
         if only is not None:
             unknown = [x for x in only if x not in names]
@@ -183,6 +195,11 @@ class Launcher:
         else:
             self.run_dir = prepare_run_dir(Path(run_dir), overwrite)
         self.state_dir = state_dir(spec.name, self.run_dir, run_dir is not None)
+        if spec.auth and not spec.tls and not spec.certs:
+            spec = spec.with_security(secret=str(make_secret(self.run_dir / SECRET_FILE)))
+        self.spec = spec
+        for name in self.local | {OPERATOR}:
+            for_spec(spec, name)  # CredentialsError now rather than in every node
         self.duration = duration
         self.out = out or sys.stdout
         self.interval = interval

@@ -45,6 +45,7 @@ from hera.nodestatus import node_status
 from hera.peers import Peers
 from hera.plugins import find_measure
 from hera.resources import Resources
+from hera.security.credentials import CredentialsError, secured
 from hera.services import NodeService, ServiceContext, ServiceFactory, SlotService
 from hera.spec import ClusterSpec
 from hera.store import Store
@@ -97,15 +98,16 @@ class Node:
         if state_dir is None and self.run_dir is not None:
             state_dir = self.run_dir / "state"
         self.state_dir = Path(state_dir) / name if state_dir is not None else None
-        self.store = Store()
+        self.store = Store((n.name for n in spec.nodes), spec.max_names_per_node)
         self.resources = Resources()
         logs = self.run_dir is not None and spec.log_node == name
         self.data = DataPath(
             name,
             self.keys,
             self.store,
-            CsvLog(self.run_dir, self._columns()) if logs else None,
+            CsvLog(self.run_dir, self._columns(), spec.max_open_logs) if logs else None,
             spec.log_names,
+            declared=frozenset((str(m.name), n) for n, m in spec.measures()),
         )
         self.peers = Peers(self.keys)
         self.control = ControlPlane(self)
@@ -123,7 +125,10 @@ class Node:
     def start(self) -> None:
         """Join the bus, recover state from peers and start the services and measures."""
         self._select_estimation_backend()
-        bus = bus_config(self.spec, self.name)
+        try:
+            bus = secured(self.spec, self.name, bus_config(self.spec, self.name))
+        except CredentialsError as e:
+            raise FatalStart(str(e)) from None
         me = ", ".join(bus.listen) or "no endpoint (a client)"
         try:
             self.session = s = open_session(bus)
@@ -134,7 +139,9 @@ class Node:
         self.data.attach(s)
         if self.data.csv is not None:  # the logging node keeps every sender's samples
             self.data.want(self.spec.log_names or None)
-        self.args = ArgsStore(self.name, s, self.keys, self.state_dir)
+        self.args = ArgsStore(
+            self.name, s, self.keys, self.state_dir, self.spec.max_clock_skew_ms * 1_000_000
+        )
         self._handles.append(
             s.liveliness().declare_subscriber(
                 self.keys.alive_all, self.peers.on_alive, history=True
@@ -169,8 +176,23 @@ class Node:
         if spent:
             log.info("estimation kernels ready in %.2f s", spent)
 
+    def _remember_incarnation(self) -> None:
+        """Read the incarnation of this node's previous process from its state directory
+        (the only one whose seqs it will continue) and write this process's own."""
+        if self.state_dir is None:
+            return
+        path = self.state_dir / "incarnation"
+        with contextlib.suppress(OSError, ValueError):
+            inc, start = path.read_text().split()
+            self.data.previous_incarnation, self.data.previous_start = int(inc), float(start)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(f"{self.data.incarnation} {self.started_at!r}\n")
+        os.replace(tmp, path)
+
     def _recover(self) -> None:
         """Wait briefly for live peers, then fetch args and this node's latest seqs."""
+        self._remember_incarnation()
         expected = {n.name for n in self.spec.nodes} - {self.name}
         self.peers.wait_for(expected, RECOVERY_TIMEOUT)
         if not self.peers.up:

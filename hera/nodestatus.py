@@ -69,14 +69,20 @@ def node_status(node: Node) -> dict[str, Any]:
             "accepted": node.store.accepted,
             "stale": node.store.stale,
             "takes": node.data.interest,
+            "refused": dict(node.store.refused),
+            "incarnations": node.store.incarnations,
         },
+        "incarnation": data.incarnation,
         "rejected": dict(data.rejected),
+        "refused_sources": data.refused_sources(),
+        "args_rejected": dict(node.args.rejected) if node.args else {},
         "last_rejection": data.last_rejection,
         "peers": node.peers.names(),
         "peer_events": node.peers.event_log(),
         "transit_ms": data.percentiles(),
         "args": len(node.args.items()) if node.args else 0,
         "log_rows": data.csv.rows if data.csv else 0,
+        "log_files_open": data.csv.open_files if data.csv else 0,
     }
     for name, service in node.services.items():
         try:

@@ -158,16 +158,22 @@ def test_the_train_across_hosts_survives_a_cut_off_host(hosts, tmp_path):
     spec = tmp_path / "hosts.toml"
     spec.write_text(spec_text(hosts, tmp_path))
     env = cluster_env(tmp_path)
+    certs = str(tmp_path / "certs")  # the hosts share one cluster secret (README)
+    assert hosts.hera(1, ["certs", str(spec), "--out", certs], env).returncode == 0
     ups = {}
     for h, names in LOCAL.items():
         run = tmp_path / f"run_h{h}"
-        args = ["up", str(spec), "--only", ",".join(names), "--run-dir", str(run)]
+        args = ["up", str(spec), "--only", ",".join(names), "--run-dir", str(run), "--cert", certs]
         ups[h] = hosts.run(h, [*args, "--interval", "5"], tmp_path / f"up_h{h}.log", env)
     computer = tmp_path / "run_h1"
 
     # from h4, which reaches only r1's second address: the whole cluster answers
     def status_from_h4():
-        out = hosts.hera(4, ["status", "--connect", f"tcp/{hosts.addr(1, 1)}:7490", "--json"], env)
+        out = hosts.hera(
+            4,
+            ["status", "--connect", f"tcp/{hosts.addr(1, 1)}:7490", "--json", "--cert", certs],
+            env,
+        )
         if out.returncode != 0:
             return None
         import json
@@ -232,7 +238,9 @@ def test_the_train_across_hosts_survives_a_cut_off_host(hosts, tmp_path):
     )
 
     # stop everything from h4: every host's launcher ends, nothing is left running
-    down = hosts.hera(4, ["down", "--connect", f"tcp/{hosts.addr(1, 1)}:7490"], env)
+    down = hosts.hera(
+        4, ["down", "--connect", f"tcp/{hosts.addr(1, 1)}:7490", "--cert", certs], env
+    )
     assert down.returncode == 0, down.stdout + down.stderr
     assert "4 launchers stopping" in down.stdout
     for h, proc in ups.items():

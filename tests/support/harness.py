@@ -91,6 +91,15 @@ class Cluster:
             return False
         return state.get("launcher_pid") == self.proc.pid
 
+    def operator_bus(self, connect: tuple[str, ...], **kw):
+        """A bus configuration joining this cluster as the operator (its credentials and
+        access control), for tests that open their own session."""
+        from hera.bus import BusConfig
+        from hera.security.access import OPERATOR
+        from hera.security.credentials import secured
+
+        return secured(self.client.spec, OPERATOR, BusConfig(connect=connect, **kw))
+
     def launcher_state(self) -> dict:
         return json.loads((self.run_dir / "launcher.json").read_text())["nodes"]
 
