@@ -10,6 +10,7 @@ import logging
 import sys
 import time
 
+from hera import tools
 from hera.client import ClusterClient, find_run_dir, pid_alive
 
 BENCHES = ("bus", "kalman", "sync")
@@ -66,6 +67,15 @@ def _parser() -> argparse.ArgumentParser:
     )
     up.add_argument("--overwrite", action="store_true", help="replace a previous run in --run-dir")
     up.add_argument("--interval", type=float, default=1.0, help="status refresh period, s")
+    up.add_argument(
+        "--web",
+        nargs="?",
+        type=int,
+        const=8765,
+        metavar="PORT",
+        help="serve the live web view on 127.0.0.1:PORT (default 8765; 0: any free port)",
+    )
+    up.add_argument("--mcap", metavar="OUT", help="record every sample live to an MCAP file")
 
     node = _command(
         sub,
@@ -149,6 +159,8 @@ def _parser() -> argparse.ArgumentParser:
     ev.add_argument("--node", help="node whose models are plotted (default: the first)")
     ev.add_argument("--json", action="store_true", help="print JSON")
 
+    tools.add_parsers(sub, _command)
+
     b = _command(sub, "bench", "run a benchmark: " + ", ".join(BENCHES), HELP_EXAMPLES["bench"])
     b.add_argument("name", choices=BENCHES)
     b.add_argument("rest", nargs=argparse.REMAINDER, help="options of that benchmark")
@@ -185,9 +197,17 @@ def _dispatch(args: argparse.Namespace) -> int:
 
         spec = resolve_spec(args.spec)
         launcher = Launcher(
-            spec, args.run_dir, args.duration, interval=args.interval, overwrite=args.overwrite
+            spec,
+            args.run_dir,
+            args.duration,
+            interval=args.interval,
+            overwrite=args.overwrite,
+            web=args.web,
+            mcap=args.mcap,
         )
         return launcher.run()
+    if args.cmd in tools.COMMANDS:
+        return tools.run(args)
     if args.cmd == "status":
         return _status(args)
     if args.cmd == "down":
@@ -352,7 +372,10 @@ def _replay(args: argparse.Namespace) -> int:
         like = live_schedule(args.recordings, args.start_like)
         if not like:
             raise ValueError(f"no live estimates of node {args.start_like!r} in the recordings")
-    counts = replay(args.recordings, args.out, chosen, args.node, like)
+    from hera.progress import Progress
+
+    with Progress("replay") as progress:
+        counts = replay(args.recordings, args.out, chosen, args.node, like, progress)
     for name, n in counts.items():
         print(f"{name:<20} {n:>7} estimates -> {Path(args.out) / 'measures'}")
     return 0
@@ -367,7 +390,10 @@ def _eval(args: argparse.Namespace) -> int:
 
     options = EvalOptions(after=args.after, settle=args.settle)
     index = AppIndex()
-    results = evaluate(args.run_dir, options, index)
+    from hera.progress import Progress
+
+    with Progress("eval") as progress:
+        results = evaluate(args.run_dir, options, index, progress)
     if not results:
         raise ValueError(f"{args.run_dir}: no model outputs to score (no fusion model logged)")
     if args.json:

@@ -16,6 +16,8 @@
   launcher's pid, so they stop even if the launcher is SIGKILLed.
 - SIGINT, SIGTERM, ``hera down`` or the end of ``--duration`` stop everything: SIGTERM to
   each node, SIGKILL after the shutdown timeout, exit 0, nothing left behind.
+- ``web``: serve the live web view (:mod:`hera.console`) on that loopback port while the
+  cluster runs; ``mcap``: record every sample to that MCAP file (:mod:`hera.export.mcap`).
 """
 
 from __future__ import annotations
@@ -66,6 +68,16 @@ def busy_ports(spec: ClusterSpec) -> list[str]:
                     f"({e.strerror}): change [cluster] base_port or the node's port"
                 )
     return out
+
+
+def web_port_problems(port: int, host: str = "127.0.0.1") -> list[str]:
+    """The problem with serving the web view on ``host:port``, if any."""
+    with socket.socket() as s:
+        try:
+            s.bind((host, port))
+        except OSError as e:
+            return [f"--web: port {port} on {host} is not free ({e.strerror}): pick another"]
+    return []
 
 
 def shown_measures(spec: ClusterSpec, index: AppIndex) -> dict[str, type]:
@@ -149,9 +161,13 @@ class Launcher:
         out: IO[str] | None = None,
         interval: float = 1.0,
         overwrite: bool = False,
+        web: int | None = None,
+        mcap: str | Path | None = None,
     ) -> None:
         spec = check_spec(load_spec(spec_path))
         busy = busy_ports(spec)
+        if web:
+            busy += web_port_problems(web)
         if busy:
             raise SpecError(busy)
         if spec.base_port == 0 and not all(n.port for n in spec.nodes):
@@ -173,6 +189,7 @@ class Launcher:
         self.stopping = threading.Event()
         self.failed: str | None = None
         self._logs: dict[str, IO[bytes]] = {}
+        self.web, self.mcap = web, mcap
         self.registry_file = registry_dir() / f"{spec.name}-{os.getpid()}.json"
 
     # -- process management -------------------------------------------------------------
@@ -277,6 +294,7 @@ class Launcher:
         for sig in (signal.SIGINT, signal.SIGTERM):
             handlers[sig] = signal.signal(sig, lambda *_: self.stopping.set())
         client = None
+        extras: list[Any] = []
         try:
             for np in self.nodes.values():
                 self._spawn(np)
@@ -284,6 +302,7 @@ class Launcher:
                 f"cluster {self.spec.name!r}: {len(self.nodes)} nodes, run dir {self.run_dir}"
             )
             client = ClusterClient(self.spec)
+            extras = self._start_extras()
             started = time.monotonic()
             next_view = started + self.interval
             while not self.stopping.is_set():
@@ -300,6 +319,11 @@ class Launcher:
             self._say("stopping")
             return 1 if self.failed else 0
         finally:
+            for extra in reversed(extras):
+                try:
+                    extra.close()
+                except Exception as e:  # closing the view or the recorder must not stop the stop
+                    self._say(f"closing {type(extra).__name__} failed: {e}")
             if client is not None:
                 with contextlib.suppress(Exception):
                     client.close()
@@ -311,6 +335,30 @@ class Launcher:
             for f in self._logs.values():
                 f.close()
             self._say(self._next_steps())
+
+    def _start_extras(self) -> list[Any]:
+        """The web view and the live MCAP recorder, when asked for (closed at the end)."""
+        extras: list[Any] = []
+        if self.mcap is not None:
+            from hera.export.mcap import LiveRecorder
+
+            extras.append(LiveRecorder(self.spec, self.mcap))
+            self._say(f"recording every sample to {self.mcap}")
+        if self.web is not None:
+            from hera.console.server import ConsoleServer
+            from hera.console.state import Console
+
+            console = Console(
+                self.spec,
+                self.run_dir,
+                launcher_state=lambda: {n: p.info() for n, p in self.nodes.items()},
+            )
+            extras.append(console)
+            server = ConsoleServer(console, "127.0.0.1", self.web)
+            url = server.start()
+            extras.append(server)
+            self._say(f"web view on {url}")
+        return extras
 
     def _next_steps(self) -> str:
         """Where the run is and what to run next (printed when the cluster has stopped)."""

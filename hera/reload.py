@@ -1,0 +1,237 @@
+"""Hot code reload on one node (``hera reload PACKAGE_OR_MODULE``; the original's
+``update_code``, thesis ch. 4.6.2 and app. F).
+
+What :func:`reload_code` does on the node that receives the ``reload`` control verb:
+
+1. **Load the new code.** The target module (a package: every loaded module under it) is
+   reloaded, and so is every loaded module that refers to one of them (a measure module
+   that imported the model class from the reloaded model module), each after the modules
+   it refers to. The runtime's own modules (those loaded before the node loaded any
+   measure) are never reloaded: new runtime code needs a restart.
+2. **Blue/green replacement.** Every measure whose class now loads as a different class
+   is replaced under the supervisor: a new worker of the new class (green) is created and
+   ``init`` run while the old one (blue) keeps publishing; then blue is abandoned (it never
+   publishes again) and stopped after its current step, green receives blue's attributes
+   through :meth:`hera.measure.Measure.code_change` and starts stepping. The rest of the
+   node is untouched; a measure that is not running gets the new code at its next start.
+3. **Rollback.** If the new code fails to import, or a green fails to ``init``, to take
+   the handover or to complete its first step, the modules get their old contents back,
+   every measure already replaced in this reload is replaced again by its old code (with
+   the state handed back) and the reply says why.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import logging
+import sys
+import threading
+import time
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
+
+from hera.plugins import find_measure
+
+if TYPE_CHECKING:  # pragma: no cover
+    from hera.node import Node
+
+log = logging.getLogger("hera.reload")
+
+BASELINE = frozenset(sys.modules)
+"""Modules loaded with the runtime (before any measure): never reloaded."""
+START_TIMEOUT = 10.0
+"""Seconds a new worker has to run ``init`` and to complete its first step."""
+
+
+class ReloadError(ValueError):
+    """The new code could not be loaded or started; everything was rolled back."""
+
+
+# -- modules ------------------------------------------------------------------------------
+def target_modules(target: str) -> list[str]:
+    """The loaded modules a target names: the module, or a package and its loaded
+    submodules. ValueError when it names no importable module or a runtime module."""
+    try:
+        spec = importlib.util.find_spec(target)
+    except (ImportError, ValueError) as e:
+        raise ValueError(f"cannot find module {target!r}: {e}") from None
+    if spec is None:
+        raise ValueError(f"no module called {target!r} is installed")
+    if target in BASELINE:
+        raise ValueError(f"{target!r} is part of the runtime: restart the nodes to load its code")
+    return sorted(m for m in list(sys.modules) if m == target or m.startswith(target + "."))
+
+
+def _refers_to(module: ModuleType, names: set[str]) -> set[str]:
+    """The modules among ``names`` whose objects ``module``'s globals hold."""
+    out = set()
+    for value in list(vars(module).values()):
+        try:
+            owner = value.__name__ if isinstance(value, ModuleType) else value.__module__
+        except Exception:  # objects with exotic attribute access
+            continue
+        if isinstance(owner, str) and owner in names and owner != module.__name__:
+            out.add(owner)
+    return out
+
+
+def reload_order(targets: list[str]) -> list[str]:
+    """``targets`` and every loaded non-runtime module that refers to one of them
+    (transitively), each after the modules of the set it refers to."""
+    chosen = set(targets)
+    grew = True
+    while grew:
+        grew = False
+        for name, module in list(sys.modules.items()):
+            if name in chosen or name in BASELINE or not isinstance(module, ModuleType):
+                continue
+            if _refers_to(module, chosen):
+                chosen.add(name)
+                grew = True
+    order: list[str] = []
+    visiting: set[str] = set()
+
+    def visit(name: str) -> None:
+        if name in order or name in visiting:
+            return
+        visiting.add(name)
+        for dep in sorted(_refers_to(sys.modules[name], chosen)):
+            visit(dep)
+        order.append(name)
+
+    for name in sorted(chosen):
+        visit(name)
+    return order
+
+
+def reload_modules(order: list[str]) -> dict[str, dict[str, Any]]:
+    """Reload ``order``; return the modules' previous contents (for :func:`restore`).
+    ReloadError naming the module when one fails (the others are restored first)."""
+    saved = {name: dict(vars(sys.modules[name])) for name in order}
+    for name in order:
+        try:
+            importlib.reload(sys.modules[name])
+        except BaseException as e:
+            restore(saved)
+            raise ReloadError(
+                f"the new code of {name} does not load ({type(e).__name__}: {e}); "
+                "nothing was changed"
+            ) from None
+    return saved
+
+
+def restore(saved: dict[str, dict[str, Any]]) -> None:
+    """Give reloaded modules their previous contents back."""
+    for name, contents in saved.items():
+        module = sys.modules.get(name)
+        if module is not None:
+            vars(module).clear()
+            vars(module).update(contents)
+
+
+# -- blue/green ---------------------------------------------------------------------------
+def swap(node: Node, name: str, cls: type, timeout: float = START_TIMEOUT) -> dict[str, Any]:
+    """Replace the running measure ``name`` of ``node`` by one of class ``cls`` (see the
+    module docstring, step 2); ReloadError saying why when the new one does not start, in
+    which case the measure runs its previous class again."""
+    sup = node.supervisor
+    child = sup.children[name]
+    decl = node.decls[name]
+    blue = child.worker
+    if blue is None or child.state != "running":
+        old_make = child.start
+        child.start = node.measure_factory(decl, cls)
+        return {"running": False, "undo": lambda: setattr(child, "start", old_make)}
+    old_cls, old_make = blue.measure_cls, child.start
+    make = node.measure_factory(decl, cls, blue.ctx.counters)
+    committed = threading.Event()
+    failed: list[str] = []
+
+    def on_exit(worker, error) -> None:
+        if committed.is_set():
+            sup.exited(worker, error)
+        else:
+            failed.append(worker.error or "it ended before its first step")
+
+    gate = threading.Event()
+    green = make(on_exit, gate)
+    green.start()
+    deadline = time.monotonic() + timeout
+    while not green.ready.wait(0.005):
+        if failed or time.monotonic() > deadline:
+            green.stop()
+            raise ReloadError(
+                f"measure {name}: the new code does not start: "
+                + (failed[0] if failed else f"init took over {timeout:g} s")
+            )
+    t_switch = time.monotonic()
+    old = sup.replace(name, green, make)
+    period = decl.resolve(cls).period
+    if old is not None:
+        old.thread.join(max(1.0, 3 * period))
+    handed = old is not None and not old.thread.is_alive() and old.measure is not None
+    if handed:
+        green.handover = (getattr(old.measure_cls, "version", ""), dict(vars(old.measure)))
+    gate.set()
+    while green.stats.steps < 1:
+        if failed or time.monotonic() > deadline:
+            break
+        time.sleep(0.001)
+    if green.stats.steps >= 1 and not failed:
+        committed.set()
+        first = green.first_step_at or time.monotonic()
+        return {
+            "running": True,
+            "handover": handed,
+            "switch_ms": round((first - t_switch) * 1e3, 3),
+            "undo": lambda: swap(node, name, old_cls),
+        }
+    reason = failed[0] if failed else f"no first step within {timeout:g} s"
+    green.abandoned = True
+    green.stop()
+    # the previous code again, with the state the new one was handed
+    back = node.measure_factory(decl, old_cls, green.ctx.counters)
+    gate_back = threading.Event()
+    again = back(sup.exited, gate_back)
+    again.handover = green.handover
+    again.start()
+    sup.replace(name, again, old_make)
+    gate_back.set()
+    raise ReloadError(f"measure {name}: the new code does not start: {reason}")
+
+
+def reload_code(node: Node, target: str) -> dict[str, Any]:
+    """Load the new code of ``target`` on ``node`` and replace the measures it changes
+    (see the module docstring); ValueError (ReloadError) saying why, after rolling back."""
+    order = reload_order(target_modules(target))
+    if not order:
+        return {"modules": [], "replaced": {}, "note": f"{target} is not loaded on this node"}
+    saved = reload_modules(order)
+    done: dict[str, dict[str, Any]] = {}
+    try:
+        for name, decl in list(node.decls.items()):
+            child = node.supervisor.children.get(name)
+            if child is None:
+                continue
+            running = child.worker.measure_cls if child.worker is not None else None
+            try:
+                cls = find_measure(decl.use)
+            except (LookupError, TypeError) as e:
+                raise ReloadError(f"measure {name}: the new code has no measure: {e}") from None
+            if running is not None and cls is running:
+                continue
+            done[name] = swap(node, name, cls)
+    except ReloadError:
+        for info in reversed(done.values()):
+            try:
+                info["undo"]()
+            except Exception:
+                log.exception("rolling back a replaced measure failed")
+        restore(saved)
+        raise
+    log.info("reloaded %s; replaced %s", ", ".join(order), ", ".join(done) or "no measure")
+    return {
+        "modules": order,
+        "replaced": {n: {k: v for k, v in i.items() if k != "undo"} for n, i in done.items()},
+    }
