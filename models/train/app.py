@@ -256,7 +256,6 @@ class TrainApp(Application):
         cols = ("model", "node", "omega rad/s", "err %", "radius m", "err cm", "x m", "y m")
         return Panel(title, (*cols, "pos err cm"), tuple(rows))
 
-
     def web_panel(self, estimates: Sequence[Estimate], truth: Truth | None) -> WebPanel | None:
         """The track seen from above: the true circle and train, and every model's
         position estimate (heading: the direction of travel, theta + pi/2)."""
