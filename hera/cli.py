@@ -13,7 +13,7 @@ import time
 from hera import tools
 from hera.client import ClusterClient, find_run_dir, pid_alive
 
-BENCHES = ("bus", "kalman", "sync")
+BENCHES = ("bus", "kalman", "sync", "console")
 
 
 HELP_EXAMPLES = {

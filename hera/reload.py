@@ -64,11 +64,15 @@ def target_modules(target: str) -> list[str]:
 
 
 def _refers_to(module: ModuleType, names: set[str]) -> set[str]:
-    """The modules among ``names`` whose objects ``module``'s globals hold."""
+    """The modules among ``names`` whose objects (classes, functions ...) ``module``'s
+    globals hold. A module object held is not counted: it is reloaded in place, so what
+    is looked up in it at call time is the new code."""
     out = set()
     for value in list(vars(module).values()):
+        if isinstance(value, ModuleType):
+            continue
         try:
-            owner = value.__name__ if isinstance(value, ModuleType) else value.__module__
+            owner = value.__module__
         except Exception:  # objects with exotic attribute access
             continue
         if isinstance(owner, str) and owner in names and owner != module.__name__:

@@ -313,7 +313,8 @@ function drawPlane(container, panel) {
     tr.set(p.label, t);
   }
   const [x0, x1, y0, y1] = planeBounds(points, shapes);
-  const legend = 16 * Math.ceil(points.length / 3);
+  const per = width < 480 ? 2 : 3;
+  const legend = 16 * Math.ceil(points.length / per);
   const s = Math.min((width - 8) / (x1 - x0), (height - 8 - legend) / (y1 - y0));
   const ox = (width - s * (x1 - x0)) / 2, oy = (height - legend - s * (y1 - y0)) / 2;
   const X = (v) => ox + s * (v - x0), Y = (v) => oy + s * (y1 - v);
@@ -345,8 +346,8 @@ function drawPlane(container, panel) {
   }
   ctx.font = "11px system-ui, sans-serif";
   points.forEach((p, k) => {
-    const col = k % 3, row = Math.floor(k / 3);
-    const lx = 6 + col * (width / 3), ly = height - legend + 12 + 16 * row;
+    const col = k % per, row = Math.floor(k / per);
+    const lx = 6 + col * (width / per), ly = height - legend + 12 + 16 * row;
     ctx.fillStyle = p.truth ? "#111" : colorOf(labels, p.label);
     ctx.fillRect(lx, ly - 8, 8, 8);
     ctx.fillStyle = "#1d2126";
