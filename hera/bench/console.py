@@ -89,7 +89,9 @@ def measure(spec_path: Path, seconds: float, streams: int) -> dict[str, float]:
         t0 = time.monotonic()
         time.sleep(seconds)
         span = time.monotonic() - t0
-        out["nodes_alone_pct"] = 100 * sum(_cpu_seconds(p) - before[n] for n, p in pids.items()) / span
+        out["nodes_alone_pct"] = (
+            100 * sum(_cpu_seconds(p) - before[n] for n, p in pids.items()) / span
+        )
         view, url = _view(run_dir, env)
         try:
             with sync_playwright() as pw:
@@ -97,15 +99,21 @@ def measure(spec_path: Path, seconds: float, streams: int) -> dict[str, float]:
                 firsts = []
                 for _ in range(3):
                     page = browser.new_page()
-                    page.goto(url + "?streams=" + ",".join(f"obs{i % 4 + 1}/n{i // 4 + 1}"
-                                                           for i in range(streams)))
+                    page.goto(
+                        url
+                        + "?streams="
+                        + ",".join(f"obs{i % 4 + 1}/n{i // 4 + 1}" for i in range(streams))
+                    )
                     page.wait_for_function("window.hera.firstPointsMs !== null", timeout=20000)
                     firsts.append(page.evaluate("window.hera.firstPointsMs"))
                     page.close()
                 out["first_points_ms_max"] = max(firsts)
                 page = browser.new_page()
-                page.goto(url + "?streams=" + ",".join(f"obs{i % 4 + 1}/n{i // 4 + 1}"
-                                                       for i in range(streams)))
+                page.goto(
+                    url
+                    + "?streams="
+                    + ",".join(f"obs{i % 4 + 1}/n{i // 4 + 1}" for i in range(streams))
+                )
                 page.wait_for_function("window.hera.firstPointsMs !== null", timeout=20000)
                 time.sleep(2.0)
                 v0 = _cpu_seconds(view.pid)
@@ -152,16 +160,24 @@ def main(argv: list[str]) -> int:
         fast_spec.write_text(FAST.sub("period = 0.01", text))
         fast = measure(fast_spec, args.seconds, 20)
     print("hera bench console (5 nodes x 4 observers; page open in headless Chromium)")
-    print(f"  20 streams at 10 Hz:  nodes alone {slow['nodes_alone_pct']:.1f} % of a core, "
-          f"with the view {slow['nodes_with_view_pct']:.1f} % + view server "
-          f"{slow['view_pct']:.1f} %")
-    print(f"    the view adds {slow['added_pct']:.1f} % of a core (target < 5 %: "
-          f"{'met' if slow['added_pct'] < 5 else 'MISSED'})")
-    print(f"  20 streams at 100 Hz: view server {fast['view_pct']:.1f} % of a core, nodes "
-          f"{fast['nodes_alone_pct']:.1f} -> {fast['nodes_with_view_pct']:.1f} %; "
-          f"{fast['points_per_s_per_stream']:.1f} points/s per plot (10 expected); page lag "
-          f"p50 {fast['lag_p50_s']:.2f} s, max {fast['lag_max_s']:.2f} s")
+    print(
+        f"  20 streams at 10 Hz:  nodes alone {slow['nodes_alone_pct']:.1f} % of a core, "
+        f"with the view {slow['nodes_with_view_pct']:.1f} % + view server "
+        f"{slow['view_pct']:.1f} %"
+    )
+    print(
+        f"    the view adds {slow['added_pct']:.1f} % of a core (target < 5 %: "
+        f"{'met' if slow['added_pct'] < 5 else 'MISSED'})"
+    )
+    print(
+        f"  20 streams at 100 Hz: view server {fast['view_pct']:.1f} % of a core, nodes "
+        f"{fast['nodes_alone_pct']:.1f} -> {fast['nodes_with_view_pct']:.1f} %; "
+        f"{fast['points_per_s_per_stream']:.1f} points/s per plot (10 expected); page lag "
+        f"p50 {fast['lag_p50_s']:.2f} s, max {fast['lag_max_s']:.2f} s"
+    )
     worst_first = max(slow["first_points_ms_max"], fast["first_points_ms_max"])
-    print(f"  first points after opening the page: at most {worst_first:.0f} ms over 6 opens "
-          f"(target 2000 ms: {'met' if worst_first < 2000 else 'MISSED'})")
+    print(
+        f"  first points after opening the page: at most {worst_first:.0f} ms over 6 opens "
+        f"(target 2000 ms: {'met' if worst_first < 2000 else 'MISSED'})"
+    )
     return 0
