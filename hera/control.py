@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 
-from hera import dynamic, reload
+from hera import dynamic
 from hera.application import VerbContext
 from hera.measure import ARGS_PREFIX
 
@@ -109,7 +109,9 @@ class ControlPlane:
             module = request.get("module")
             if not isinstance(module, str) or not module:
                 raise ValueError("reload needs a 'module' (a module or package name)")
-            return reload.reload_code(node, module)
+            from hera.reload import reload_code
+
+            return reload_code(node, module)
         if verb == "store":
             name = request.get("name")
             samples = node.store.snapshot() if name is None else node.store.get(str(name))

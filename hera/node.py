@@ -45,6 +45,7 @@ from hera.measure import MeasureContext, MeasureSpec, runtime_args
 from hera.nodestatus import node_status
 from hera.peers import Peers
 from hera.plugins import find_measure
+from hera.reload import freeze_runtime
 from hera.resources import Resources
 from hera.services import NodeService, ServiceContext, ServiceFactory, SlotService
 from hera.spec import ClusterSpec
@@ -52,6 +53,7 @@ from hera.store import Store
 from hera.supervisor import Child, Supervisor
 from hera.worker import Worker
 
+freeze_runtime()  # what is loaded now is the runtime's: a hot reload never replaces it
 log = logging.getLogger("hera.node")
 
 EXIT_ESCALATED = 3

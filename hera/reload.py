@@ -6,8 +6,9 @@ What :func:`reload_code` does on the node that receives the ``reload`` control v
 1. **Load the new code.** The target module (a package: every loaded module under it) is
    reloaded, and so is every loaded module that refers to one of them (a measure module
    that imported the model class from the reloaded model module), each after the modules
-   it refers to. The runtime's own modules (those loaded before the node loaded any
-   measure) are never reloaded: new runtime code needs a restart.
+   it refers to. The runtime's own modules (:func:`is_runtime`: those loaded with the
+   runtime, the fusion and estimation modules included, their submodules, and the node
+   services' packages) are never reloaded: new runtime code needs a restart.
 2. **Blue/green replacement.** Every measure whose class now loads as a different class
    is replaced under the supervisor: a new worker of the new class (green) is created and
    ``init`` run while the old one (blue) keeps publishing; then blue is abandoned (it never
@@ -38,8 +39,41 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger("hera.reload")
 
-BASELINE = frozenset(sys.modules)
-"""Modules loaded with the runtime (before any measure): never reloaded."""
+_runtime: frozenset[str] = frozenset()
+_packages: tuple[str, ...] = ()
+
+
+def freeze_runtime() -> None:
+    """Remember the modules loaded now, with the fusion and estimation modules, as the
+    runtime's. :mod:`hera.node` calls it once its own imports are done, before a node
+    loads any measure (the first reload does, if nothing did)."""
+    global _runtime, _packages
+    import hera.estimation  # noqa: F401 - loaded lazily by nodes: the runtime's too
+    import hera.fusion  # noqa: F401
+
+    _runtime = frozenset(sys.modules)
+    _packages = tuple(
+        name + "." for name in _runtime if "." in name and hasattr(sys.modules[name], "__path__")
+    )
+
+
+def is_runtime(name: str, services: tuple[str, ...] = ()) -> bool:
+    """Whether module ``name`` belongs to the runtime (never reloaded): loaded with it,
+    a submodule of one of its packages (the root package aside), or in the package of a
+    node service (``services``: their packages, e.g. the sync service's)."""
+    if not _runtime:
+        freeze_runtime()
+    if name in _runtime or name.startswith(_packages):
+        return True
+    return any(name == p or name.startswith(p + ".") for p in services)
+
+
+def service_packages(node: Node) -> tuple[str, ...]:
+    """The packages of the node's services (where their classes live)."""
+    modules = (type(service).__module__ for service in node.services.values())
+    return tuple(m.rsplit(".", 1)[0] if "." in m else m for m in modules)
+
+
 START_TIMEOUT = 10.0
 """Seconds a new worker has to run ``init`` and to complete its first step."""
 
@@ -49,7 +83,7 @@ class ReloadError(ValueError):
 
 
 # -- modules ------------------------------------------------------------------------------
-def target_modules(target: str) -> list[str]:
+def target_modules(target: str, services: tuple[str, ...] = ()) -> list[str]:
     """The loaded modules a target names: the module, or a package and its loaded
     submodules. ValueError when it names no importable module or a runtime module."""
     try:
@@ -58,9 +92,13 @@ def target_modules(target: str) -> list[str]:
         raise ValueError(f"cannot find module {target!r}: {e}") from None
     if spec is None:
         raise ValueError(f"no module called {target!r} is installed")
-    if target in BASELINE:
+    if is_runtime(target, services):
         raise ValueError(f"{target!r} is part of the runtime: restart the nodes to load its code")
-    return sorted(m for m in list(sys.modules) if m == target or m.startswith(target + "."))
+    return sorted(
+        m
+        for m in list(sys.modules)
+        if (m == target or m.startswith(target + ".")) and not is_runtime(m, services)
+    )
 
 
 def _refers_to(module: ModuleType, names: set[str]) -> set[str]:
@@ -80,7 +118,7 @@ def _refers_to(module: ModuleType, names: set[str]) -> set[str]:
     return out
 
 
-def reload_order(targets: list[str]) -> list[str]:
+def reload_order(targets: list[str], services: tuple[str, ...] = ()) -> list[str]:
     """``targets`` and every loaded non-runtime module that refers to one of them
     (transitively), each after the modules of the set it refers to."""
     chosen = set(targets)
@@ -88,7 +126,7 @@ def reload_order(targets: list[str]) -> list[str]:
     while grew:
         grew = False
         for name, module in list(sys.modules.items()):
-            if name in chosen or name in BASELINE or not isinstance(module, ModuleType):
+            if name in chosen or is_runtime(name, services) or not isinstance(module, ModuleType):
                 continue
             if _refers_to(module, chosen):
                 chosen.add(name)
@@ -113,6 +151,7 @@ def reload_modules(order: list[str]) -> dict[str, dict[str, Any]]:
     """Reload ``order``; return the modules' previous contents (for :func:`restore`).
     ReloadError naming the module when one fails (the others are restored first)."""
     saved = {name: dict(vars(sys.modules[name])) for name in order}
+    importlib.invalidate_caches()
     for name in order:
         try:
             importlib.reload(sys.modules[name])
@@ -208,7 +247,8 @@ def swap(node: Node, name: str, cls: type, timeout: float = START_TIMEOUT) -> di
 def reload_code(node: Node, target: str) -> dict[str, Any]:
     """Load the new code of ``target`` on ``node`` and replace the measures it changes
     (see the module docstring); ValueError (ReloadError) saying why, after rolling back."""
-    order = reload_order(target_modules(target))
+    services = service_packages(node)
+    order = reload_order(target_modules(target, services), services)
     if not order:
         return {"modules": [], "replaced": {}, "note": f"{target} is not loaded on this node"}
     saved = reload_modules(order)

@@ -122,7 +122,9 @@ class Console:
 
     # -- status ---------------------------------------------------------------------------
     def _watch(self) -> None:
-        while not self._stop.wait(0 if not self.status else STATUS_PERIOD):
+        wait = 0.0  # the first status at once, then one a period
+        while not self._stop.wait(wait):
+            wait = STATUS_PERIOD
             try:
                 status = self.client.status(timeout=0.5)
             except Exception as e:  # the view must survive a failing query
@@ -277,7 +279,7 @@ class Console:
     def panels(self) -> list[dict[str, Any]]:
         """Each application's web panel for the latest estimates of its measures."""
         by_app: dict[str, tuple[Application, list[Estimate]]] = {}
-        for stream, (t, values) in sorted(self.latest.items()):
+        for stream, (t, values) in sorted(list(self.latest.items())):
             name, node = stream.split("/", 1)
             cls = self.classes.get(name)
             app = self.index.app_of(cls)

@@ -174,6 +174,7 @@ def test_reload_order_follows_who_refers_to_whom_and_a_failure_restores_everythi
     (tmp_path / "rl_other.py").write_text("from rl_pkg.user import twice\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.setattr(sys, "dont_write_bytecode", True)
+    reload.freeze_runtime()  # as a node does before loading any measure
     import rl_other  # noqa: F401
 
     try:
