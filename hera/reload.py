@@ -204,10 +204,8 @@ def swap(node: Node, name: str, cls: type, timeout: float = START_TIMEOUT) -> di
     while not green.ready.wait(0.005):
         if failed or time.monotonic() > deadline:
             green.stop()
-            raise ReloadError(
-                f"measure {name}: the new code does not start: "
-                + (failed[0] if failed else f"init took over {timeout:g} s")
-            )
+            why = failed[0] if failed else f"init took over {timeout:g} s"
+            raise ReloadError(f"measure {name}: the new code does not start ({why}); rolled back")
     t_switch = time.monotonic()
     old = sup.replace(name, green, make)
     period = decl.resolve(cls).period
@@ -241,7 +239,7 @@ def swap(node: Node, name: str, cls: type, timeout: float = START_TIMEOUT) -> di
     again.start()
     sup.replace(name, again, old_make)
     gate_back.set()
-    raise ReloadError(f"measure {name}: the new code does not start: {reason}")
+    raise ReloadError(f"measure {name}: the new code does not start ({reason}); rolled back")
 
 
 def reload_code(node: Node, target: str) -> dict[str, Any]:

@@ -304,7 +304,7 @@ def _reload(client: ClusterClient, args: argparse.Namespace) -> int:
             print(f"{node}: did not answer (it loads the new code at its next start)")
             code = 1
         elif not reply.get("ok"):
-            print(f"{node}: rolled back: {reply['error']}")
+            print(f"{node}: not reloaded: {reply['error']}")
             code = 1
         elif not reply.get("modules"):
             print(f"{node}: {reply.get('note', 'nothing to reload')}")

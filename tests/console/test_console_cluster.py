@@ -387,13 +387,14 @@ def test_reload_swaps_the_model_without_a_gap_and_rolls_back_bad_code(train):
         (train.plugins / "reload_model.py").write_text("this is not python (\n")
         bad = train.hera("reload", "reload_model")
         assert bad.returncode == 1, bad.stdout + bad.stderr
-        assert bad.stdout.count("rolled back: the new code of reload_model does not load") == 4
+        assert bad.stdout.count("not reloaded: the new code of reload_model does not load") == 4
         assert "SyntaxError" in bad.stdout
         # new code whose model refuses to start: rolled back, the old code still publishing
         write_plugin(train.plugins, 3, init_body='raise RuntimeError("no such sensor")')
         bad = train.hera("reload", "reload_model")
         assert bad.returncode == 1, bad.stdout + bad.stderr
-        assert bad.stdout.count("measure gyro_v: the new code does not start") == 2, bad.stdout
+        assert bad.stdout.count("measure gyro_v: the new code does not start (") == 2, bad.stdout
+        assert bad.stdout.count("); rolled back") == 2, bad.stdout
         assert "no such sensor" in bad.stdout
         n = {node: len(rec.of(node)) for node in ("computer", "nav_1")}
         for node in ("computer", "nav_1"):
