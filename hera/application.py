@@ -2,10 +2,10 @@
 
 An *application* bundles what one use of the framework needs beyond the runtime: its
 measures and fusion models, the truth of its simulated world, how to score a run, its plots,
-its rows of the live panel of ``hera up``, and any control verbs it adds. The train ladder
-is one; a user's own package can be another. The runtime finds applications through the
-entry-point group ``hera.apps`` and asks them through this interface only; it never names
-one.
+its rows of the live panel of ``hera up``, its view on the web page (:class:`WebPanel`), and
+any control verbs it adds. The train ladder is one; a user's own package can be another.
+The runtime finds applications through the entry-point group ``hera.apps`` and asks them
+through this interface only; it never names one.
 
 Write one by subclassing :class:`Application`: set :attr:`~Application.name` and
 :attr:`~Application.measures`, and override the methods that apply (every one is optional,

@@ -80,6 +80,19 @@ def web_port_problems(port: int, host: str = "127.0.0.1") -> list[str]:
     return []
 
 
+def console_dependencies(web: bool, mcap: bool) -> None:
+    """ImportError naming the extra to install when the web view or MCAP recording is asked
+    for without its packages (checked before any node starts)."""
+    import importlib.util
+
+    missing = [m for m, wanted in (("aiohttp", web), ("mcap", mcap)) if wanted]
+    missing = [m for m in missing if importlib.util.find_spec(m) is None]
+    if missing:
+        raise ImportError(
+            f"{' and '.join(missing)} not installed: pip install 'hera-fusion[console]'"
+        )
+
+
 def shown_measures(spec: ClusterSpec, index: AppIndex) -> dict[str, type]:
     """The measures whose latest values the live view shows: every measure of an
     application (its panel decides what to show) and every fusion model."""
@@ -168,6 +181,8 @@ class Launcher:
         busy = busy_ports(spec)
         if web:
             busy += web_port_problems(web)
+        if web is not None or mcap is not None:
+            console_dependencies(web is not None, mcap is not None)
         if busy:
             raise SpecError(busy)
         if spec.base_port == 0 and not all(n.port for n in spec.nodes):
