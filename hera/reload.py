@@ -81,6 +81,10 @@ START_TIMEOUT = 10.0
 class ReloadError(ValueError):
     """The new code could not be loaded or started; everything was rolled back."""
 
+    resume: Any = None
+    """For a measure whose new code failed after it was swapped in: the function that runs
+    its old code again (once the modules have their old contents back)."""
+
 
 # -- modules ------------------------------------------------------------------------------
 def target_modules(target: str, services: tuple[str, ...] = ()) -> list[str]:
@@ -231,15 +235,17 @@ def swap(node: Node, name: str, cls: type, timeout: float = START_TIMEOUT) -> di
     reason = failed[0] if failed else f"no first step within {timeout:g} s"
     green.abandoned = True
     green.stop()
-    # the previous code again, with the state the new one was handed
-    back = node.measure_factory(decl, old_cls, green.ctx.counters)
-    gate_back = threading.Event()
-    again = back(sup.exited, gate_back)
-    again.handover = green.handover
-    again.start()
-    sup.replace(name, again, old_make)
-    gate_back.set()
-    raise ReloadError(f"measure {name}: the new code does not start ({reason}); rolled back")
+
+    def resume() -> None:
+        """The previous code again, with the state the new one was handed."""
+        again = node.measure_factory(decl, old_cls, green.ctx.counters)(sup.exited)
+        again.handover = green.handover
+        sup.replace(name, again, old_make)
+        again.start()
+
+    error = ReloadError(f"measure {name}: the new code does not start ({reason}); rolled back")
+    error.resume = resume
+    raise error
 
 
 def reload_code(node: Node, target: str) -> dict[str, Any]:
@@ -264,13 +270,14 @@ def reload_code(node: Node, target: str) -> dict[str, Any]:
             if running is not None and cls is running:
                 continue
             done[name] = swap(node, name, cls)
-    except ReloadError:
-        for info in reversed(done.values()):
+    except ReloadError as e:
+        restore(saved)  # first: the old code must see its own module contents
+        for undo in [e.resume, *(i["undo"] for i in reversed(done.values()))]:
             try:
-                info["undo"]()
+                if undo is not None:
+                    undo()
             except Exception:
                 log.exception("rolling back a replaced measure failed")
-        restore(saved)
         raise
     log.info("reloaded %s; replaced %s", ", ".join(order), ", ".join(done) or "no measure")
     return {
