@@ -250,3 +250,72 @@ def test_a_fusion_measure_takes_over_the_old_state_and_fuses_each_sample_once():
     other = Other()
     assert adopt_model(other, old.model) and other.got == ("", 3)
     assert not adopt_model(object.__new__(type("Else", (), {})), old.model)
+
+
+# -- the view's picture of a cluster -----------------------------------------------------
+class FakeSample:
+    """What the console's data callback reads of a Zenoh sample."""
+
+    def __init__(self, key: str, payload: bytes) -> None:
+        self.key_expr = key
+        self.payload = self
+        self._bytes = payload
+
+    def to_bytes(self) -> bytes:
+        return self._bytes
+
+
+def test_the_console_joins_model_columns_with_the_truth_and_builds_the_panels():
+    from hera.console.state import Console
+    from hera.examples import resolve_spec
+    from hera.launcher import free_ports
+    from hera.spec import load_spec
+    from hera.wire import encode
+
+    spec = load_spec(resolve_spec("train"))
+    spec = spec.with_ports(free_ports("127.0.0.1", len(spec.nodes))).with_world(epoch=1000.0)
+    console = Console(spec)
+    try:
+        truth = console._truth_of(console.classes["track_gyro"])
+        for k in range(50):  # 5 s of a perfect estimate at 10 Hz, then garbage
+            t = 1010.05 + k / 10  # mid-bucket
+            tr = truth.at(t)
+            values = [tr["x [m]"], tr["y [m]"], tr["theta [rad]"], tr["omega [rad/s]"]]
+            console._on_sample(
+                FakeSample("hera/train/data/track_gyro/computer", encode(k + 1, t, values))
+            )
+            console._on_sample(
+                FakeSample("hera/train/data/nav/nav_1", encode(k + 1, t, [0.4, 0.84]))
+            )
+        console._on_sample(FakeSample("hera/train/data/nav/nav_1", b"\x00junk"))
+        assert console.rejected == 1
+        body = console.poll(["track_gyro/computer", "nav/nav_1"], 0.0)
+        streams = {s["stream"]: s for s in body["streams"]}
+        gyro, nav = streams["track_gyro/computer"], streams["nav/nav_1"]
+        assert gyro["model"] and gyro["label"] == "track_gyro (e7)"
+        assert gyro["truth"] == ["x [m]", "y [m]", "theta [rad]", "omega [rad/s]"]
+        assert not nav["model"] and nav["truth"] == [] and nav["columns"][0].startswith("a_")
+        points = body["data"]["track_gyro/computer"]["points"]
+        assert len(points) == 50
+        for _, _, n, means, _, _, true in points:
+            assert n == 1 and means == pytest.approx(true, abs=1e-5)
+        assert len(body["data"]["nav/nav_1"]["points"][0]) == 6  # no truth for a sensor
+        (panel,) = body["panels"]
+        assert panel["kind"] == "plane"
+        labels = {p["label"] for p in panel["data"]["points"]}
+        assert labels == {"track_gyro (e7) computer", "truth"}
+        assert panel["data"]["shapes"][0]["circle"][2] == pytest.approx(0.6)
+        assert {n["name"]: n["state"] for n in body["cluster"]["nodes"]} == {
+            "nav_1": "down",
+            "sonar_1": "down",
+            "sonar_2": "down",
+            "computer": "down",
+        }
+        since = points[-2][1]
+        again = console.poll(["track_gyro/computer"], since)
+        assert [p[0] for p in again["data"]["track_gyro/computer"]["points"]] == [
+            points[-2][0],
+            points[-1][0],
+        ]
+    finally:
+        console.close()
