@@ -64,8 +64,9 @@ def add_parsers(sub: Any, command: Any) -> None:
         sub, "start", "start a stopped measure, or a new one at run time", HELP_EXAMPLES["start"]
     )
     st.add_argument("node")
-    st.add_argument("name", nargs="?", help="a measure of the node (or the new one's name)")
+    st.add_argument("name", nargs="?", help="a stopped measure of the node")
     st.add_argument("--use", help="start a new measure of this kind (kept across restarts)")
+    st.add_argument("--name", dest="new_name", help="the new measure's name (default: --use)")
     st.add_argument("--args", help="its arguments, a JSON object")
     st.add_argument("--period", type=float, help="its period, s")
     sp = command(
@@ -251,13 +252,15 @@ def _start(client: ClusterClient, args: argparse.Namespace) -> int:
     if args.use is None:
         if args.name is None:
             raise ValueError("start needs a measure NAME, or --use KIND to start a new one")
-        if args.args is not None or args.period is not None:
-            raise ValueError("--args and --period go with --use (a new measure)")
+        if args.args is not None or args.period is not None or args.new_name is not None:
+            raise ValueError("--name, --args and --period go with --use (a new measure)")
         request: dict[str, Any] = {"measure": args.name}
     else:
+        if args.name is not None and args.new_name is not None and args.name != args.new_name:
+            raise ValueError(f"two names given: {args.name!r} and --name {args.new_name!r}")
         request = {"use": args.use}
-        if args.name is not None:
-            request["name"] = args.name
+        if (args.new_name or args.name) is not None:
+            request["name"] = args.new_name or args.name
         if args.period is not None:
             request["period"] = args.period
         if args.args is not None:
