@@ -66,7 +66,9 @@ def add_parsers(sub: Any, command: Any) -> None:
     st.add_argument("node")
     st.add_argument("name", nargs="?", help="a stopped measure of the node")
     st.add_argument("--use", help="start a new measure of this kind (kept across restarts)")
-    st.add_argument("--name", dest="new_name", help="the new measure's name (default: --use)")
+    st.add_argument(
+        "--name", dest="new_name", metavar="NAME", help="the new measure's name (default: --use)"
+    )
     st.add_argument("--args", help="its arguments, a JSON object")
     st.add_argument("--period", type=float, help="its period, s")
     sp = command(
