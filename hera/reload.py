@@ -4,11 +4,13 @@
 What :func:`reload_code` does on the node that receives the ``reload`` control verb:
 
 1. **Load the new code.** The target module (a package: every loaded module under it) is
-   reloaded, and so is every loaded module that refers to one of them (a measure module
-   that imported the model class from the reloaded model module), each after the modules
-   it refers to. The runtime's own modules (:func:`is_runtime`: those loaded with the
-   runtime, the fusion and estimation modules included, their submodules, and the node
-   services' packages) are never reloaded: new runtime code needs a restart.
+   loaded again, into a new module object, and so is every loaded module that refers to
+   one of them (a measure module that imported the model class from the reloaded model
+   module), each after the modules it refers to. The old module objects are not touched:
+   the measures still running the old code keep seeing their own globals. The runtime's
+   own modules (:func:`is_runtime`: those loaded with the runtime, the fusion and
+   estimation modules included, their submodules, and the node services' packages) are
+   never reloaded: new runtime code needs a restart.
 2. **Blue/green replacement.** Every measure whose class now loads as a different class
    is replaced under the supervisor: a new worker of the new class (green) is created and
    ``init`` run while the old one (blue) keeps publishing; then blue is abandoned (it never
@@ -16,9 +18,9 @@ What :func:`reload_code` does on the node that receives the ``reload`` control v
    through :meth:`hera.measure.Measure.code_change` and starts stepping. The rest of the
    node is untouched; a measure that is not running gets the new code at its next start.
 3. **Rollback.** If the new code fails to import, or a green fails to ``init``, to take
-   the handover or to complete its first step, the modules get their old contents back,
-   every measure already replaced in this reload is replaced again by its old code (with
-   the state handed back) and the reply says why.
+   the handover or to complete its first step, the old modules are put back, every
+   measure already replaced in this reload is replaced again by its old code (with the
+   state handed back) and the reply says why.
 """
 
 from __future__ import annotations
@@ -83,7 +85,7 @@ class ReloadError(ValueError):
 
     resume: Any = None
     """For a measure whose new code failed after it was swapped in: the function that runs
-    its old code again (once the modules have their old contents back)."""
+    its old code again (once the old modules are back)."""
 
 
 # -- modules ------------------------------------------------------------------------------
@@ -106,19 +108,20 @@ def target_modules(target: str, services: tuple[str, ...] = ()) -> list[str]:
 
 
 def _refers_to(module: ModuleType, names: set[str]) -> set[str]:
-    """The modules among ``names`` whose objects (classes, functions ...) ``module``'s
-    globals hold. A module object held is not counted: it is reloaded in place, so what
-    is looked up in it at call time is the new code."""
+    """The modules among ``names`` whose objects (classes, functions, the module itself)
+    ``module``'s globals hold; a package's own submodules aside (a new submodule is set on
+    its package when it is loaded)."""
     out = set()
     for value in list(vars(module).values()):
-        if isinstance(value, ModuleType):
-            continue
         try:
-            owner = value.__module__
+            owner = value.__name__ if isinstance(value, ModuleType) else value.__module__
         except Exception:  # objects with exotic attribute access
             continue
-        if isinstance(owner, str) and owner in names and owner != module.__name__:
-            out.add(owner)
+        if not isinstance(owner, str) or owner not in names or owner == module.__name__:
+            continue
+        if isinstance(value, ModuleType) and owner.startswith(module.__name__ + "."):
+            continue
+        out.add(owner)
     return out
 
 
@@ -151,30 +154,34 @@ def reload_order(targets: list[str], services: tuple[str, ...] = ()) -> list[str
     return order
 
 
-def reload_modules(order: list[str]) -> dict[str, dict[str, Any]]:
-    """Reload ``order``; return the modules' previous contents (for :func:`restore`).
-    ReloadError naming the module when one fails (the others are restored first)."""
-    saved = {name: dict(vars(sys.modules[name])) for name in order}
+def reload_modules(order: list[str]) -> dict[str, ModuleType]:
+    """Load the new code of ``order`` into new module objects, in that order (so a module
+    that imports from an earlier one gets the new one); return the old modules (for
+    :func:`restore`). The old module objects are left as they were, so code still running
+    from them keeps its own globals. ReloadError naming the module when one fails (the old
+    ones are put back first)."""
+    saved = {name: sys.modules[name] for name in order}
     importlib.invalidate_caches()
     for name in order:
-        try:
-            importlib.reload(sys.modules[name])
-        except BaseException as e:
-            restore(saved)
-            raise ReloadError(
-                f"the new code of {name} does not load ({type(e).__name__}: {e}); "
-                "nothing was changed"
-            ) from None
+        sys.modules.pop(name, None)
+    try:
+        for name in order:
+            importlib.import_module(name)
+    except BaseException as e:
+        restore(saved)
+        raise ReloadError(
+            f"the new code of {name} does not load ({type(e).__name__}: {e}); nothing was changed"
+        ) from None
     return saved
 
 
-def restore(saved: dict[str, dict[str, Any]]) -> None:
-    """Give reloaded modules their previous contents back."""
-    for name, contents in saved.items():
-        module = sys.modules.get(name)
-        if module is not None:
-            vars(module).clear()
-            vars(module).update(contents)
+def restore(saved: dict[str, ModuleType]) -> None:
+    """Put the old modules back (in ``sys.modules`` and on their packages)."""
+    for name, module in saved.items():
+        sys.modules[name] = module
+        parent, _, child = name.rpartition(".")
+        if parent in sys.modules:
+            setattr(sys.modules[parent], child, module)
 
 
 # -- blue/green ---------------------------------------------------------------------------
@@ -271,7 +278,7 @@ def reload_code(node: Node, target: str) -> dict[str, Any]:
                 continue
             done[name] = swap(node, name, cls)
     except ReloadError as e:
-        restore(saved)  # first: the old code must see its own module contents
+        restore(saved)  # first: the old code is found again by name
         for undo in [e.resume, *(i["undo"] for i in reversed(done.values()))]:
             try:
                 if undo is not None:

@@ -405,6 +405,8 @@ def test_reload_swaps_the_model_without_a_gap_and_rolls_back_bad_code(train):
         status = train.cluster.status("computer")
         assert status["measures"]["gyro_v"]["state"] == "running"
         assert status["measures"]["gyro_v"]["restarts"] == 0
+        # the old code never saw the new module's globals while a reload was under way
+        assert {r[3] for r in rec.rows} == {1.0, 2.0}
         unknown = train.hera("reload", "no_such_module")
         assert unknown.returncode == 2 and "no_such_module" in unknown.stderr
         runtime = train.hera("reload", "hera.fusion")

@@ -181,8 +181,11 @@ def test_reload_order_follows_who_refers_to_whom_and_a_failure_restores_everythi
         assert reload.target_modules("rl_pkg.core") == ["rl_pkg.core"]
         assert reload.reload_order(["rl_pkg.core"]) == ["rl_pkg.core", "rl_pkg.user", "rl_other"]
         (pkg / "core.py").write_text("def value():\n    return 5\n")
+        old_twice = sys.modules["rl_pkg.user"].twice
         saved = reload.reload_modules(reload.reload_order(["rl_pkg.core"]))
         assert sys.modules["rl_pkg.user"].twice() == 10
+        assert sys.modules["rl_pkg"].core is sys.modules["rl_pkg.core"]  # on its package
+        assert old_twice() == 2  # code still running from the old module keeps its globals
         reload.restore(saved)
         assert sys.modules["rl_pkg.user"].twice() == 2
         (pkg / "user.py").write_text("raise ImportError('broken on purpose')\n")

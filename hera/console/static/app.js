@@ -252,10 +252,18 @@ function drawStream(charts, stream) {
     if (now && now[6] && now[6][i] !== null) label += `  truth ${fmt(now[6][i])}  err ${fmt(now[3][i] - now[6][i])}`;
     ctx.fillStyle = "#1d2126"; ctx.font = "11px system-ui, sans-serif";
     ctx.fillText(label, 6, top + 10);
-    ctx.fillStyle = "#69707a";
-    ctx.fillText(fmt(hi), width - 50, top + 22);
-    ctx.fillText(fmt(lo), width - 50, top + 12 + h - 2);
+    tag(ctx, fmt(hi), width - 6, top + 23);
+    tag(ctx, fmt(lo), width - 6, top + 12 + h - 3);
   });
+}
+
+function tag(ctx, text, right, baseline) {
+  // a scale label on a light background, right-aligned at ``right``
+  const w = ctx.measureText(text).width;
+  ctx.fillStyle = "rgba(255, 255, 255, 0.85)";
+  ctx.fillRect(right - w - 3, baseline - 10, w + 4, 13);
+  ctx.fillStyle = "#69707a";
+  ctx.fillText(text, right - w - 1, baseline);
 }
 
 // -- the applications' views --------------------------------------------------------------
