@@ -17,15 +17,19 @@ The peer of the comparison is the cluster without the view, measured in the same
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import re
+import signal
 import statistics
 import subprocess
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
-from hera.bench.bus import _cpu_seconds, observers_spec, running
+from hera.bench.bus import _cpu_seconds, observers_spec
+from hera.client import ClusterClient
 from hera.launcher import node_command
 
 FAST = re.compile(r"period = 0\.1\b")
@@ -68,11 +72,39 @@ def _browser(playwright, profile: str):
     )
 
 
-def _run_dir(client) -> Path:
-    from hera.client import running_clusters
-
-    found = [c for c in running_clusters() if c["cluster"] == client.spec.name]
-    return Path(found[-1]["run_dir"])
+@contextlib.contextmanager
+def cluster(spec_path: Path) -> Iterator[tuple[ClusterClient, Path]]:
+    """``hera up`` of a spec in a temporary run dir: its client and run dir; stopped after."""
+    with tempfile.TemporaryDirectory(prefix="hera-bench-") as tmp:
+        run_dir = Path(tmp) / "run"
+        proc = subprocess.Popen(
+            node_command("up", str(spec_path), "--run-dir", str(run_dir), "--interval", "3600"),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            env={**os.environ, "HERA_REGISTRY": str(Path(tmp) / "registry")},
+        )
+        client = None
+        try:
+            deadline = time.monotonic() + 30
+            while not (run_dir / "launcher.json").exists():
+                if time.monotonic() > deadline or proc.poll() is not None:
+                    raise RuntimeError("the cluster did not start")
+                time.sleep(0.05)
+            client = ClusterClient.from_run_dir(run_dir)
+            while len(client.status(0.5)) < len(client.spec.nodes):
+                if time.monotonic() > deadline:
+                    raise RuntimeError("not every node answered within 30 s")
+                time.sleep(0.1)
+            yield client, run_dir
+        finally:
+            if client is not None:
+                client.close()
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
 
 
 def measure(spec_path: Path, seconds: float, streams: int) -> dict[str, float]:
@@ -80,8 +112,7 @@ def measure(spec_path: Path, seconds: float, streams: int) -> dict[str, float]:
     from playwright.sync_api import sync_playwright
 
     out: dict[str, float] = {}
-    with running(None, spec_path) as client, tempfile.TemporaryDirectory() as profile:
-        run_dir = _run_dir(client)
+    with cluster(spec_path) as (client, run_dir), tempfile.TemporaryDirectory() as profile:
         env = {**os.environ}
         pids = _node_pids(client)
         time.sleep(2.0)
