@@ -42,6 +42,8 @@ from hera.statusview import problem_rows, sync_rows
 log = logging.getLogger("hera.console")
 
 STATUS_PERIOD = 1.0
+CACHE_S = 0.5
+"""Seconds the cluster's and the streams' part of an answer are reused."""
 EVENTS = 200
 WINDOW_S = 30.0
 """Seconds of history a newly opened page receives."""
@@ -82,6 +84,7 @@ class Console:
         self.launcher: dict[str, dict[str, Any]] = {}
         self.started = time.time()
         self._lock = threading.Lock()
+        self._cache: dict[str, tuple[float, Any]] = {}
         self._stop = threading.Event()
         self.client = ClusterClient(spec)
         self.peers = Peers(self.client.keys)
@@ -307,11 +310,19 @@ class Console:
         return {
             "time": now,
             "bucket_s": self.buffers.bucket_s,
-            "cluster": self.cluster(),
-            "streams": self.streams(),
+            "cluster": self._cached("cluster", CACHE_S, self.cluster),
+            "streams": self._cached("streams", CACHE_S, self.streams),
             "data": self.data(streams, start),
-            "panels": self.panels(),
+            "panels": self._cached("panels", self.buffers.bucket_s, self.panels),
         }
+
+    def _cached(self, key: str, ttl: float, make: Callable[[], Any]) -> Any:
+        """``make()``, reused for ``ttl`` s (pages poll more often than these change)."""
+        now = time.monotonic()
+        held = self._cache.get(key)
+        if held is None or now - held[0] > ttl:
+            held = self._cache[key] = (now, make())
+        return held[1]
 
     def close(self) -> None:
         """Stop the status thread and leave the bus."""

@@ -8,7 +8,8 @@ const TRAIL = 60;
 const COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf",
   "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22"];
 
-// What the tests read: how many polls, points per stream, when the first points came.
+// What the tests read: how many polls, points (buckets) received per stream, when the
+// first points came.
 const hera = window.hera = {
   opened: performance.now(), polls: 0, errors: 0, firstPointsMs: null,
   points: {}, selected: [], streams: [], lastPoll: null,
@@ -120,10 +121,14 @@ function update(body, wanted) {
   for (const [stream, d] of Object.entries(body.data)) {
     let pts = series.get(stream);
     if (!pts) series.set(stream, pts = new Map());
-    for (const p of d.points) pts.set(p[0], p);
+    let fresh = 0;
+    for (const p of d.points) {
+      if (!pts.has(p[0])) fresh += 1;
+      pts.set(p[0], p);  // the last bucket again, grown since
+    }
     const oldest = Math.floor((body.time - WINDOW_S - 5) / bucketS);
     for (const k of pts.keys()) if (k < oldest) pts.delete(k);
-    hera.points[stream] = (hera.points[stream] || 0) + d.points.length;
+    hera.points[stream] = (hera.points[stream] || 0) + fresh;
     if (hera.firstPointsMs === null && d.points.length) {
       hera.firstPointsMs = performance.now() - hera.opened;
     }
