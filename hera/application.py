@@ -155,9 +155,10 @@ class WebPanel:
       true`` (drawn as the reference). The page keeps a short trail per label.
     - ``"attitude"``: ``bodies``: ``{"label", "roll", "pitch", "yaw"}`` (an artificial
       horizon and a compass each), an optional ``"truth": true``.
-    - ``"grid"``: a heat map: ``values`` (rows of numbers, None for unknown), ``origin``
-      ``[x0, y0]`` of cell [0][0], ``cell`` (its size), optional ``min``/``max`` (the
-      colour scale) and ``points`` as for ``plane``.
+    - ``"grid"``: a heat map: ``values`` (rows of numbers, None for unknown; row i spans
+      y0 + i cell .. y0 + (i + 1) cell, column j likewise in x), ``origin`` ``[x0, y0]``
+      (the lower-left corner of cell [0][0]), ``cell`` (its size), optional ``min``/``max``
+      (the colour scale) and ``points`` as for ``plane``.
     """
 
     title: str

@@ -29,9 +29,8 @@ from pathlib import Path
 
 import jsonschema
 import pytest
-from browser import artifacts_dir, launch
+from browser import artifacts_dir
 from harness import Cluster, cluster_env, wait_for
-from playwright.sync_api import sync_playwright
 
 from hera.recordings import measures_dir, read_csv
 
@@ -141,14 +140,6 @@ def train(tmp_path_factory):
     t = Train(tmp_path_factory.mktemp("console"))
     yield t
     t.cluster.stop()
-
-
-@pytest.fixture(scope="module")
-def browser(tmp_path_factory):
-    with sync_playwright() as p:
-        context = launch(p, tmp_path_factory.mktemp("chromium-profile"))
-        yield context
-        context.close()
 
 
 def open_page(browser, url: str, width: int = 1280, height: int = 900):

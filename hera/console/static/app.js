@@ -369,32 +369,42 @@ function drawPlane(container, panel) {
 }
 
 function drawAttitude(container, panel) {
+  // one row per body: an artificial horizon (roll, pitch), a compass (yaw), the numbers
   const bodies = panel.data.bodies || [];
-  const per = 150;
-  const {box, ctx, width} = canvasFor(container, panel.title, per * Math.max(1, Math.ceil(bodies.length / 2)));
+  const row = 112;
+  const {box, ctx, width} = canvasFor(container, panel.title, row * Math.max(1, bodies.length));
   box.className = "panel";
   box.dataset.kind = "attitude";
   box.dataset.points = bodies.length;
   box.querySelector("h3").textContent = panel.title;
+  const r = Math.min(44, width / 6);
+  const deg = (v) => (v * 180 / Math.PI).toFixed(1);
   bodies.forEach((b, k) => {
-    const cx = (k % 2 ? 0.75 : 0.25) * width, cy = per * Math.floor(k / 2) + per / 2 - 8;
-    const r = Math.min(per / 2 - 18, width / 4 - 10);
+    const cy = row * k + r + 6, hx = r + 6, cx = 3 * r + 16;
+    const color = b.truth ? "#111" : COLORS[k % COLORS.length];
     ctx.save();
-    ctx.beginPath(); ctx.arc(cx - r / 2 - 4, cy, r / 2 + 14, 0, 2 * Math.PI); ctx.clip();
-    ctx.translate(cx - r / 2 - 4, cy); ctx.rotate(-b.roll);
-    const shift = (r / 2 + 14) * Math.max(-1, Math.min(1, b.pitch / (Math.PI / 2)));
-    ctx.fillStyle = "#9cc3e6"; ctx.fillRect(-100, -100 + shift, 200, 100);
-    ctx.fillStyle = "#c9a77c"; ctx.fillRect(-100, shift, 200, 100);
+    ctx.beginPath(); ctx.arc(hx, cy, r, 0, 2 * Math.PI); ctx.clip();
+    ctx.translate(hx, cy); ctx.rotate(-b.roll);
+    const shift = r * Math.max(-1, Math.min(1, b.pitch / (Math.PI / 2)));
+    ctx.fillStyle = "#9cc3e6"; ctx.fillRect(-2 * r, -2 * r + shift, 4 * r, 2 * r);
+    ctx.fillStyle = "#c9a77c"; ctx.fillRect(-2 * r, shift, 4 * r, 2 * r);
     ctx.restore();
-    ctx.strokeStyle = "#333"; ctx.beginPath(); ctx.arc(cx - r / 2 - 4, cy, r / 2 + 14, 0, 2 * Math.PI); ctx.stroke();
-    ctx.beginPath(); ctx.arc(cx + r / 2 + 18, cy, r / 2 + 14, 0, 2 * Math.PI); ctx.stroke();
-    ctx.beginPath(); ctx.moveTo(cx + r / 2 + 18, cy);
-    ctx.lineTo(cx + r / 2 + 18 + (r / 2 + 10) * Math.sin(b.yaw), cy - (r / 2 + 10) * Math.cos(b.yaw));
-    ctx.strokeStyle = b.truth ? "#111" : COLORS[k % COLORS.length]; ctx.lineWidth = 2; ctx.stroke();
-    ctx.lineWidth = 1; ctx.fillStyle = "#1d2126"; ctx.font = "11px system-ui, sans-serif";
-    const deg = (v) => (v * 180 / Math.PI).toFixed(1);
-    ctx.fillText(`${b.label}: roll ${deg(b.roll)} pitch ${deg(b.pitch)} yaw ${deg(b.yaw)} deg`,
-      cx - r - 8, cy + r / 2 + 30);
+    ctx.strokeStyle = "#333"; ctx.lineWidth = 1;
+    ctx.beginPath(); ctx.moveTo(hx - r / 2, cy); ctx.lineTo(hx + r / 2, cy); ctx.stroke();
+    ctx.beginPath(); ctx.arc(hx, cy, r, 0, 2 * Math.PI); ctx.stroke();
+    ctx.beginPath(); ctx.arc(cx, cy, r, 0, 2 * Math.PI); ctx.stroke();
+    ctx.fillStyle = "#69707a"; ctx.font = "10px system-ui, sans-serif";
+    ctx.fillText("N", cx - 3, cy - r + 11);
+    ctx.beginPath(); ctx.moveTo(cx, cy);
+    ctx.lineTo(cx + (r - 6) * Math.sin(b.yaw), cy - (r - 6) * Math.cos(b.yaw));
+    ctx.strokeStyle = color; ctx.lineWidth = 2; ctx.stroke(); ctx.lineWidth = 1;
+    ctx.fillStyle = color; ctx.font = "12px system-ui, sans-serif";
+    const tx = cx + r + 12;
+    ctx.fillText(b.label, tx, cy - 18);
+    ctx.fillStyle = "#1d2126"; ctx.font = "11px system-ui, sans-serif";
+    ctx.fillText(`roll ${deg(b.roll)} deg`, tx, cy - 2);
+    ctx.fillText(`pitch ${deg(b.pitch)} deg`, tx, cy + 13);
+    ctx.fillText(`yaw ${deg(b.yaw)} deg`, tx, cy + 28);
   });
 }
 
@@ -422,7 +432,7 @@ function drawGrid(container, panel) {
   ctx.fillStyle = "#111";
   for (const p of d.points || []) {
     ctx.beginPath();
-    ctx.arc(4 + ((p.x - gx) / size + 0.5) * cell, 4 + (nr - 0.5 - (p.y - gy) / size) * cell, 4, 0, 2 * Math.PI);
+    ctx.arc(4 + (p.x - gx) / size * cell, 4 + (nr - (p.y - gy) / size) * cell, 4, 0, 2 * Math.PI);
     ctx.fill();
   }
 }
