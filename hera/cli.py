@@ -9,9 +9,10 @@ import logging
 import sys
 import time
 
+from hera import tools
 from hera.client import ClusterClient, find_run_dir, pid_alive
 
-BENCHES = ("bus", "kalman", "sync", "scale")
+BENCHES = ("bus", "kalman", "sync", "scale", "console")
 
 
 HELP_EXAMPLES = {
@@ -73,6 +74,15 @@ def _parser() -> argparse.ArgumentParser:
     )
     cert_help = "folder made by 'hera certs' (its certificates, or its cluster secret)"
     up.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
+    up.add_argument(
+        "--web",
+        nargs="?",
+        type=int,
+        const=8765,
+        metavar="PORT",
+        help="serve the live web view on 127.0.0.1:PORT (default 8765; 0: any free port)",
+    )
+    up.add_argument("--mcap", metavar="OUT", help="record every sample live to an MCAP file")
 
     node = _command(
         sub,
@@ -193,6 +203,8 @@ def _parser() -> argparse.ArgumentParser:
     ev.add_argument("--node", help="node whose models are plotted (default: the first)")
     ev.add_argument("--json", action="store_true", help="print JSON")
 
+    tools.add_parsers(sub, _command)
+
     b = _command(sub, "bench", "run a benchmark: " + ", ".join(BENCHES), HELP_EXAMPLES["bench"])
     b.add_argument("name", choices=BENCHES)
     b.add_argument("rest", nargs=argparse.REMAINDER, help="options of that benchmark")
@@ -238,6 +250,8 @@ def _dispatch(args: argparse.Namespace) -> int:
             overwrite=args.overwrite,
             only=only,
             cert=args.cert,
+            web=args.web,
+            mcap=args.mcap,
         )
         return launcher.run()
     if args.cmd == "router":
@@ -252,6 +266,8 @@ def _dispatch(args: argparse.Namespace) -> int:
         return run_router(spec, args.name, args.parent_pid)
     if args.cmd == "certs":
         return _certs(args)
+    if args.cmd in tools.COMMANDS:
+        return tools.run(args)
     if args.cmd == "status":
         return _status(args)
     if args.cmd == "down":
@@ -283,11 +299,6 @@ def _dispatch(args: argparse.Namespace) -> int:
         module = importlib.import_module(f"hera.bench.{args.name}")
         return int(module.main(args.rest) or 0)
     raise AssertionError(args.cmd)
-
-
-def _progress(text: str) -> None:
-    """A progress line of a long command (stderr, so that stdout stays the result)."""
-    print(f"  {text} ...", file=sys.stderr, flush=True)
 
 
 def _load(spec_arg: str, cert: str | None = None):
@@ -519,7 +530,10 @@ def _replay(args: argparse.Namespace) -> int:
         like = live_schedule(args.recordings, args.start_like)
         if not like:
             raise ValueError(f"no live estimates of node {args.start_like!r} in the recordings")
-    counts = replay(args.recordings, args.out, chosen, args.node, like, progress=_progress)
+    from hera.progress import Progress
+
+    with Progress("replay") as progress:
+        counts = replay(args.recordings, args.out, chosen, args.node, like, progress)
     for name, n in counts.items():
         print(f"{name:<20} {n:>7} estimates -> {Path(args.out) / 'measures'}")
     return 0
@@ -534,8 +548,10 @@ def _eval(args: argparse.Namespace) -> int:
 
     options = EvalOptions(after=args.after, settle=args.settle)
     index = AppIndex()
-    _progress(f"scoring the model outputs of {args.run_dir}")
-    results = evaluate(args.run_dir, options, index)
+    from hera.progress import Progress
+
+    with Progress("eval") as progress:
+        results = evaluate(args.run_dir, options, index, progress)
     if not results:
         raise ValueError(f"{args.run_dir}: no model outputs to score (no fusion model logged)")
     if args.json:
@@ -545,7 +561,6 @@ def _eval(args: argparse.Namespace) -> int:
     if not args.no_plots:
         try:
             out = args.plots or Path(args.run_dir) / "eval"
-            _progress(f"drawing the plots into {out}")
             files = plot(args.run_dir, out, args.node, options, index)
             if not args.json:
                 print("plots: " + (", ".join(str(f) for f in files) or "none"))

@@ -12,6 +12,7 @@ import contextlib
 import json
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -212,6 +213,19 @@ class ClusterClient:
             with contextlib.suppress(ValueError):
                 out[str(sample.key_expr).split("/")[-2]] = json.loads(sample.payload.to_bytes())
         return out
+
+    def subscribe(self, selector: str, callback: Callable[[Any], None]) -> Any:
+        """Subscribe to key expression ``selector`` of the cluster's bus (e.g.
+        ``self.keys.data("*", "*")``); ``callback(sample)`` runs on Zenoh's threads. Returns
+        the subscriber (``undeclare()`` it, or close the client)."""
+        return self.session.declare_subscriber(selector, callback)
+
+    def subscribe_alive(self, callback: Callable[[Any], None]) -> Any:
+        """Follow the nodes' liveliness tokens (``alive/**``, with the ones already up):
+        ``callback(sample)`` with a PUT when a node appears, a DELETE when it is gone."""
+        return self.session.liveliness().declare_subscriber(
+            self.keys.alive_all, callback, history=True
+        )
 
     def status(self, timeout: float = 1.0) -> dict[str, dict[str, Any]]:
         """Every reachable node's status, by node name."""

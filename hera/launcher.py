@@ -16,6 +16,8 @@
   launcher's pid, so they stop even if the launcher is SIGKILLed.
 - SIGINT, SIGTERM, ``hera down`` or the end of ``--duration`` stop everything: SIGTERM to
   each node, SIGKILL after the shutdown timeout, exit 0, nothing left behind.
+- ``web``: serve the live web view (:mod:`hera.console`) on that loopback port while the
+  cluster runs; ``mcap``: record every sample to that MCAP file (:mod:`hera.export.mcap`).
 """
 
 from __future__ import annotations
@@ -74,6 +76,29 @@ def busy_ports(spec: ClusterSpec, local: set[str] | None = None) -> list[str]:
                     f"free ({e.strerror}): change [cluster] base_port or its port"
                 )
     return out
+
+
+def web_port_problems(port: int, host: str = "127.0.0.1") -> list[str]:
+    """The problem with serving the web view on ``host:port``, if any."""
+    with socket.socket() as s:
+        try:
+            s.bind((host, port))
+        except OSError as e:
+            return [f"--web: port {port} on {host} is not free ({e.strerror}): pick another"]
+    return []
+
+
+def console_dependencies(web: bool, mcap: bool) -> None:
+    """ImportError naming the extra to install when the web view or MCAP recording is asked
+    for without its packages (checked before any node starts)."""
+    import importlib.util
+
+    missing = [m for m, wanted in (("aiohttp", web), ("mcap", mcap)) if wanted]
+    missing = [m for m in missing if importlib.util.find_spec(m) is None]
+    if missing:
+        raise ImportError(
+            f"{' and '.join(missing)} not installed: pip install 'hera-fusion[console]'"
+        )
 
 
 def shown_measures(spec: ClusterSpec, index: AppIndex) -> dict[str, type]:
@@ -159,6 +184,8 @@ class Launcher:
         overwrite: bool = False,
         only: Sequence[str] | None = None,
         cert: str | Path | None = None,
+        web: int | None = None,
+        mcap: str | Path | None = None,
     ) -> None:
         spec = check_spec(load_spec(spec_path))
         if cert is not None:
@@ -179,6 +206,10 @@ class Launcher:
                 )
         self.local = set(names if only is None else only)
         busy = busy_ports(spec, self.local)
+        if web:
+            busy += web_port_problems(web)
+        if web is not None or mcap is not None:
+            console_dependencies(web is not None, mcap is not None)
         if busy:
             raise SpecError(busy)
         unset = [p for p in (*spec.nodes, *spec.routers) if not (p.port or p.listen)]
@@ -212,6 +243,7 @@ class Launcher:
         self.failed: str | None = None
         self._written: tuple[list, float] = ([], 0.0)
         self._logs: dict[str, IO[bytes]] = {}
+        self.web, self.mcap = web, mcap
         self.registry_file = registry_dir() / f"{spec.name}-{os.getpid()}.json"
 
     # -- process management -------------------------------------------------------------
@@ -359,6 +391,7 @@ class Launcher:
         for sig in (signal.SIGINT, signal.SIGTERM):
             handlers[sig] = signal.signal(sig, lambda *_: self.stopping.set())
         client = None
+        extras: list[Any] = []
         try:
             for np in self._procs():
                 self._spawn(np)
@@ -371,6 +404,7 @@ class Launcher:
             client.session.declare_queryable(
                 Keys(self.spec.name).launcher(self.id, "*"), self._on_query, complete=True
             )
+            extras = self._start_extras()
             started = time.monotonic()
             next_view = started + self.interval
             while not self.stopping.is_set():
@@ -387,6 +421,11 @@ class Launcher:
             self._say("stopping")
             return 1 if self.failed else 0
         finally:
+            for extra in reversed(extras):
+                try:
+                    extra.close()
+                except Exception as e:  # closing the view or the recorder must not stop the stop
+                    self._say(f"closing {type(extra).__name__} failed: {e}")
             if client is not None:
                 with contextlib.suppress(Exception):
                     client.close()
@@ -398,6 +437,30 @@ class Launcher:
             for f in self._logs.values():
                 f.close()
             self._say(self._next_steps())
+
+    def _start_extras(self) -> list[Any]:
+        """The web view and the live MCAP recorder, when asked for (closed at the end)."""
+        extras: list[Any] = []
+        if self.mcap is not None:
+            from hera.export.mcap import LiveRecorder
+
+            extras.append(LiveRecorder(self.spec, self.mcap))
+            self._say(f"recording every sample to {self.mcap}")
+        if self.web is not None:
+            from hera.console.server import ConsoleServer
+            from hera.console.state import Console
+
+            console = Console(
+                self.spec,
+                self.run_dir,
+                launcher_state=lambda: {n: p.info() for n, p in self.nodes.items()},
+            )
+            extras.append(console)
+            server = ConsoleServer(console, "127.0.0.1", self.web)
+            url = server.start()
+            extras.append(server)
+            self._say(f"web view on {url}")
+        return extras
 
     def _next_steps(self) -> str:
         """Where the run is and what to run next (printed when the cluster has stopped)."""

@@ -28,7 +28,7 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -39,11 +39,13 @@ from hera.bus import open_session
 from hera.control import EXIT_INJECTED_CRASH, ControlPlane
 from hera.csvlog import CsvLog
 from hera.datapath import DataPath
+from hera.dynamic import restore_measures
 from hera.keys import Keys
-from hera.measure import MeasureContext, MeasureSpec
+from hera.measure import MeasureContext, MeasureSpec, runtime_args
 from hera.nodestatus import node_status
 from hera.peers import Peers
 from hera.plugins import find_measure
+from hera.reload import freeze_runtime
 from hera.resources import Resources
 from hera.security.credentials import CredentialsError, secured
 from hera.services import NodeService, ServiceContext, ServiceFactory, SlotService
@@ -53,6 +55,7 @@ from hera.supervisor import Child, Supervisor
 from hera.topology import bus_config
 from hera.worker import Worker
 
+freeze_runtime()  # what is loaded now is the runtime's: a hot reload never replaces it
 log = logging.getLogger("hera.node")
 
 EXIT_ESCALATED = 3
@@ -120,6 +123,9 @@ class Node:
         self.session: zenoh.Session | None = None
         self.supervisor: Supervisor | None = None
         self.args: ArgsStore | None = None
+        self.decls: dict[str, MeasureSpec] = {}
+        """Every measure the supervisor runs, by name: the spec's and those started at run
+        time (:mod:`hera.dynamic`)."""
 
     # -- life cycle ---------------------------------------------------------------------
     def start(self) -> None:
@@ -157,7 +163,8 @@ class Node:
             on_escalate=self._escalate,
         )
         for m in self.decl.measures:
-            self._add_child(m)
+            self.add_measure(m)
+        restore_measures(self)
         # last: a node that answers status has all its measures registered
         self._handles.append(
             s.declare_queryable(self.keys.ctl(self.name, "*"), self.control.on_query, complete=True)
@@ -221,15 +228,38 @@ class Node:
             f"(node services: {sorted(self.services) or 'none'})"
         )
 
-    def _add_child(self, decl: MeasureSpec, start: bool = True) -> None:
+    def add_measure(self, decl: MeasureSpec, start: bool = True) -> None:
+        """Supervise a measure of this node (started unless ``start`` is False)."""
         cls = find_measure(decl.use)
         spec = decl.resolve(cls)
-        args = cls.prepare_args(decl.args)  # the original arguments, reused by every restart
+        args = cls.prepare_args(decl.args)  # refuse bad arguments before the child is added
         self.data.want(cls.reads(args))  # its node takes the samples it reads
-        counters: dict[str, float] = {}
+        self.supervisor.add(Child(spec.name, self.measure_factory(decl, cls), spec.restart), start)
+        self.decls[spec.name] = decl
+
+    def measure_args(self, cls: type, decl: MeasureSpec) -> Mapping[str, Any]:
+        """What a measure's ``init`` receives: the spec's arguments merged with the run-time
+        ones of the args store (``measure/<node>/<name>/<arg>``); the spec's alone, logged,
+        when the merge is refused by the measure's declared arguments."""
+        name = str(decl.resolve(cls).name)
+        extra = runtime_args(self.args.items(), self.name, name) if self.args else {}
+        if extra:
+            try:
+                return cls.prepare_args({**decl.args, **extra})
+            except ValueError as e:
+                log.error("measure %s: ignoring its run-time arguments: %s", name, e)
+        return cls.prepare_args(decl.args)
+
+    def measure_factory(
+        self, decl: MeasureSpec, cls: type, counters: dict[str, float] | None = None
+    ) -> Callable[..., Worker]:
+        """``make(on_exit, gate=None) -> Worker``: a new worker of measure class ``cls`` for
+        ``decl`` (the supervisor calls it at every (re)start; a hot reload with a gate)."""
+        spec = decl.resolve(cls)
+        counters = {} if counters is None else counters
         slots = self._slot_service(spec) if spec.sync else None
 
-        def make(on_exit) -> Worker:
+        def make(on_exit, gate: threading.Event | None = None) -> Worker:
             ctx = MeasureContext(
                 node=self.name,
                 cluster=self.spec.name,
@@ -247,15 +277,17 @@ class Node:
             )
             return Worker(
                 cls,
-                args,
+                self.measure_args(cls, decl),
                 ctx,
                 self.data.publish,
                 on_exit,
                 slot_runner=slots.slot_runner(spec, ctx) if slots is not None else None,
                 halt=self.halt,
+                args_source=lambda: self.measure_args(cls, decl),
+                gate=gate,
             )
 
-        self.supervisor.add(Child(spec.name, make, spec.restart), start=start)
+        return make
 
     def _columns(self) -> dict[str, tuple[str, ...]]:
         """Output columns of every measure of the spec (for the CSV sidecars)."""

@@ -69,15 +69,15 @@ def replay(
     models: Mapping[str, tuple[str, Mapping[str, Any]]],
     node: str = "replay",
     like: Mapping[str, tuple[float, set[int]]] | None = None,
-    progress: Callable[[str], None] | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> dict[str, int]:
     """Run each model (name -> (measure use, model params)) over ``recordings``; write its
-    estimates to ``out``; return the number of estimates per model. ``progress`` is told
-    what is being done as it goes (one line each).
+    estimates to ``out``; return the number of estimates per model.
 
     ``like`` (model name -> (start, instants), see :func:`live_schedule`) makes a replay of
     a live node: each model starts at the live model's first sample and writes estimates
     only at the live estimates' instants, so the two are compared on the same estimates.
+    ``progress(done, total)`` is told the samples fed so far (all models together).
     """
     instances = {}
     for name, (use, params) in models.items():
@@ -85,18 +85,18 @@ def replay(
         if not issubclass(cls, FusionMeasure):
             raise ValueError(f"{use!r} is not a fusion model: it cannot be replayed")
         instances[name] = cls.make_model(params, f"model {name!r} ({use})")
-    say = progress or (lambda _text: None)
     inputs = {n for m in instances.values() for n in m.inputs}
-    say(f"reading the recordings of {', '.join(sorted(inputs))} in {recordings}")
     samples = read_recordings(recordings, inputs, known=inputs)
-    say(f"{len(samples)} samples; running {len(instances)} models")
     counts = {}
-    for i, (name, model) in enumerate(instances.items(), start=1):
+    total, fed = len(samples) * len(instances), 0
+    for name, model in instances.items():
         writer = CsvWriter(out, name, node, model.columns)
         t_start, instants = (like or {}).get(name, (float("-inf"), None))
         t_start -= CSV_RESOLUTION_S  # the recordings' times are rounded to the microsecond
         try:
-            for s in samples:
+            for i, s in enumerate(samples):
+                if progress is not None and i % 5000 == 0:
+                    progress(fed + i, total)
                 if s.t < t_start or s.name not in model.inputs:
                     continue
                 changed = model.process(s)
@@ -108,9 +108,11 @@ def replay(
                         writer.write(t, values)
         finally:
             writer.close()
+        fed += len(samples)
         counts[name] = writer.seq
         write_counters(out, name, node, model_counters(model))
-        say(f"[{i}/{len(instances)}] {name}: {writer.seq} estimates")
+    if progress is not None:
+        progress(total, total)
     src = Path(recordings) / "cluster.json"
     if src.exists() and Path(out).resolve() != Path(recordings).resolve():
         shutil.copy(src, Path(out) / "cluster.json")  # the world, for hera eval

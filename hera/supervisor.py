@@ -146,6 +146,36 @@ class Supervisor:
                 child.worker.stop()
             child.state = "stopped"
 
+    def remove(self, child_id: str) -> Child:
+        """Stop a child and forget it (a measure added at run time, stopped for good)."""
+        with self._lock:
+            self.stop_child(child_id)
+            return self.children.pop(child_id)
+
+    def replace(
+        self,
+        child_id: str,
+        worker: Worker,
+        start: Callable[[Callable[[Worker, BaseException | None], None]], Worker],
+    ) -> Worker | None:
+        """Hand a child to ``worker`` (already started; its ends must be reported to
+        :meth:`exited`) and make ``start`` its factory for later restarts. The previous
+        worker is abandoned (it never publishes again), asked to stop and returned."""
+        with self._lock:
+            child = self._get(child_id)
+            old, child.worker, child.start = child.worker, worker, start
+            child.state = "running"
+            child.stopped_by_request = False
+            self._pending = [p for p in self._pending if p[1] is not child]
+            if old is not None:
+                old.abandoned = True
+                old.stop()
+            return old
+
+    def exited(self, worker: Worker, error: BaseException | None) -> None:
+        """Report the end of one of the children's workers (the ``on_exit`` of workers)."""
+        self._events.put((worker, error))
+
     def worker(self, child_id: str) -> Worker:
         """The running worker of a child (for fault injection)."""
         with self._lock:
@@ -177,12 +207,9 @@ class Supervisor:
 
     def _start(self, child: Child) -> None:
         child.stopped_by_request = False
-        child.worker = child.start(self._exited)
+        child.worker = child.start(self.exited)
         child.state = "running"
         child.worker.start()
-
-    def _exited(self, worker: Worker, error: BaseException | None) -> None:
-        self._events.put((worker, error))
 
     def _watch(self) -> None:
         timeout = self._hang_check

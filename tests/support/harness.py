@@ -53,6 +53,7 @@ class Cluster:
         env: dict[str, str],
         duration: float | None,
         overwrite: bool = False,
+        extra: tuple[str, ...] = (),
     ):
         self.run_dir = run_dir
         cmd = [
@@ -70,6 +71,8 @@ class Cluster:
             cmd += ["--duration", str(duration)]
         if overwrite:
             cmd.append("--overwrite")
+        cmd += list(extra)
+        self.log = run_dir.parent / f"{run_dir.name}-launcher.log"
         self.out = open(run_dir.parent / f"{run_dir.name}-launcher.log", "w")  # noqa: SIM115
         self.proc = subprocess.Popen(cmd, env=env, stdout=self.out, stderr=subprocess.STDOUT)
         self.client = None
