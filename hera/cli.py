@@ -12,7 +12,7 @@ import time
 
 from hera.client import ClusterClient, find_run_dir, pid_alive
 
-BENCHES = ("bus", "kalman", "sync")
+BENCHES = ("bus", "kalman", "sync", "tilt")
 
 
 def _parser() -> argparse.ArgumentParser:
