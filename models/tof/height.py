@@ -14,17 +14,19 @@ a reading arrives; a reading is fused at its own measurement time (the last pred
 shortened to reach it), one sensor at a time (for one time, the same as the seed's stacked
 z and diagonal R). The centre sensor is the one at the board's origin (its payload says
 where it sits); heights are of that point, in m; angles in rad. The ``plane`` kind takes
-each range as d = h / (cos r cos p) - x tan p / cos r + y tan r (:mod:`.plane`), with pitch
-and roll as random walks (``q_tilt`` rad^2/s).
+each range as d = h / (cos r cos p) - x tan p / cos r + y tan r (:mod:`.plane`); pitch and
+roll revert to level with the time constant ``tilt_tau`` (the seed's board is "held
+approximately parallel to the desk"; it also bounds the angle two sensors cannot see),
+driven by ``q_tilt`` (rad^2/s).
 
-``sigma_j`` may be one value or one per moving mode, and ``still = true`` adds a mode for a
-board held still (velocity and acceleration zero, the height drifting by ``q_still``
-m^2/s): with several modes, the filter is an interacting multiple model (:mod:`.imm`)
-switching between them (leaving rates ``switch_rates``, 1/s, one per mode; ``q_tilt`` one
-per mode too). The seed's kinds default to the seed's single values; ``plane`` defaults to
-three modes: still, moved slowly (sigma_j 2) and moved fast (30: a hand's jerk, and tilting).
-A single sigma_j cannot be both quiet when the board is still and quick when it is moved;
-the modes can, and when still the estimate averages the readings as a still board allows.
+``sigma_j`` may be one value or one per mode, 0 meaning a board held still (velocity and
+acceleration zero, the height drifting by ``q_still`` m^2/s): with several modes the filter
+is an interacting multiple model (:mod:`.imm`) switching between them (leaving rates
+``switch_rates``, 1/s, and ``q_tilt``, one per mode). The seed's kinds default to the seed's
+single values; ``plane`` to four modes: held still, tilted (height still), moved slowly
+(sigma_j 2) and moved fast (30: a hand's jerk). A single sigma_j cannot be both quiet when
+the board is still and quick when it is moved; the modes can, and when still the estimate
+averages the readings as a still board allows.
 
 Beyond the seed, every kind:
 
@@ -88,11 +90,10 @@ class TofHeight:
 
     Settings: ``kind``; ``names`` (input names, ["tof"]); ``sigma`` (m, range noise: R =
     sigma^2, seed 0.003); ``sigma_a`` (m/s^2, cv: seed task 2's 0.1); ``sigma_j`` (m/s^3,
-    one or one per moving mode; default :data:`DEFAULT_SIGMA_J`); ``still`` (a still mode
-    first; default only for plane), ``q_still`` (m^2/s); ``q_tilt`` (rad^2/s, plane, one or
-    one per mode: [1e-7, 1e-4, 0.05]); ``switch_rates`` (1/s, one per mode: [0.5, 0.5,
-    3.0]); ``dt`` (s,
-    predict step, 0.01); ``var0`` (initial variances of a and v: the seed's 1e-3);
+    one or one per mode, 0 a still mode; default :data:`DEFAULT_SIGMA_J`); ``q_still``
+    (m^2/s); ``q_tilt`` (rad^2/s, plane, one or one per mode: [1e-7, 0.02, 1e-3, 0.05]);
+    ``tilt_tau`` (s, 10); ``switch_rates`` (1/s, one per mode: [0.5, 0.5, 0.5, 3.0]); ``dt``
+    (s, predict step, 0.01); ``var0`` (initial variances of a and v: the seed's 1e-3);
     ``tilt_var0`` (rad^2); ``gate`` (probability, None: no gate); ``relock``;
     ``valid_statuses``; ``stuck_repeats``, ``dead_s``, ``invalid_run``, ``gated_run``
     (:class:`~hera.models.tof.health.SensorHealth`); ``max_lag`` (s: a reading older than the
@@ -168,7 +169,8 @@ class TofHeight:
 
     # -- process --------------------------------------------------------------------------------
     def _matrices(self, mode: int, step: float) -> tuple[np.ndarray, np.ndarray]:
-        """(F, Q) of ``mode`` over ``step`` s (seed tasks 2-4, or still; tilt a random walk)."""
+        """(F, Q) of ``mode`` over ``step`` s (seed tasks 2-4, or still; tilt reverting to
+        level, Ornstein-Uhlenbeck)."""
         jerk = self.jerks[mode]
         m = 2 if self.kind == "cv" else 3
         if jerk == 0.0:  # still: a and v are zero, the height drifts slowly

@@ -1,7 +1,7 @@
 """2-D tilt end to end (seed 003) on a real 2-node cluster: deploy/tilt.toml, the IMU on the
 robot, the four filters on the robot and on a computer.
 
-One run (~42 s) is shared by the tests of this module: the gyroscope calibrated on the stand
+One run (~36 s) is shared by the tests of this module: the gyroscope calibrated on the stand
 at the start; an operator asks for a calibration while the robot balances (it must refuse to
 finish, and the filters carry on with the stored bias); the robot's node is killed and comes
 back with its calibration (no recalibration). Asserted: until the kill, the filters on
@@ -25,7 +25,7 @@ from hera.models.tilt.app import THETA, robot_truth, score_tilt
 from hera.recordings import read_csv
 
 ROOT = Path(__file__).resolve().parents[2]
-ASK_AT, KILL_AT, END_AT = 15.0, 24.0, 42.0  # s after the epoch
+ASK_AT, KILL_AT, END_AT = 15.0, 22.0, 36.0  # s after the epoch
 
 
 @pytest.fixture(scope="module")

@@ -216,18 +216,58 @@ def main(argv: Sequence[str]) -> int:
     seeds = range(int(argv[1]) if len(argv) > 1 else 5)
     if what == "tof":
         kinds = ("cv", "ca", "fused", "plane")
-        head = ("seed", "kind", "rmse", "still", "fast", "lag", "max", "tilt")
-        print(" ".join(f"{h:>6}" for h in head))
+        head = ("seed", "kind", "rmse", "still", "settle", "fast", "lag", "max", "tilt")
+        print(" ".join(f"{h:>7}" for h in head))
         for seed in seeds:
-            world = {"scenario": "desk", "seed": seed}
-            res = tof_scores(kinds, world, 75.0, seed)
+            res = tof_scores(kinds, {"scenario": "desk", "seed": seed}, 75.0, seed)
             for k in kinds:
                 r = res[k]
+                cells = [r[x] for x in ("rmse_mm", "still_mm", "settle_mm", "fast_mm", "lag_ms")]
+                cells += [r["max_mm"], r.get("tilt_deg") or float("nan")]
+                print(f"{seed:>7} {k:>7} " + " ".join(f"{c:7.2f}" for c in cells))
+    elif what == "stuck":
+        from hera.models.tof.app import desk_truth, score_height
+        from hera.models.tof.height import TofHeight
+
+        for seed in seeds:
+            for sensor, kind in (("left", "stuck"), ("centre", "stuck"), ("right", "dropout")):
+                world = {"scenario": "desk", "seed": seed}
+                feed = tof_samples(world, 75.0, seed, [Fault(sensor, 20.0, kind)])
+                s = run_model(TofHeight(kind="plane"), feed, duration=75.0)
+                bit = {"left": 1, "centre": 2, "right": 4}[sensor]
+                mask = s.column("faulty [mask]").astype(int)
+                hit = np.nonzero((s.t >= 20.0) & (mask & bit > 0))[0]
+                keep = s.t >= 20.0
+                late = Series("m", "n", s.columns, s.t[keep], s.values[keep])
+                r = score_height(late, desk_truth(world), EvalOptions(after=0.0))
                 print(
-                    f"{seed:>4} {k:>6} {r['rmse_mm']:6.2f} {r['still_mm']:6.2f} "
-                    f"{r['fast_mm']:6.2f} {r['lag_ms']:5.0f} {r['max_mm']:6.1f} "
-                    f"{r.get('tilt_deg') or float('nan'):5.2f}"
+                    f"seed {seed} {sensor:>6} {kind:>7}: reported after "
+                    f"{s.t[hit[0]] - 20.0:.2f} s, RMSE after {r['rmse_mm']:.2f} mm"
                 )
+    elif what in ("tilt", "drift"):
+        from hera.models.tilt.app import robot_truth, score_tilt
+        from hera.models.tilt.tilt import Tilt2D
+
+        drift = {"gyro_ramp_dps_s": 0.5 / 60.0, "ramp_start_s": 12.0, "ramp_s": 60.0}
+        keys = ("converge_s", "still_deg", "rmse_deg", "push_deg", "max_deg", "final_deg")
+        print(f"{'seed':>4} {'filter':>6} " + " ".join(f"{k:>10}" for k in keys))
+        for seed in seeds:
+            world = {"scenario": "balancing", "seed": seed}
+            samples, _ = imu_samples(
+                world,
+                80.0 if what == "drift" else 60.0,
+                seed,
+                model=drift if what == "drift" else None,
+            )
+            stream = [(x.t, x) for x in samples]
+            for kind in ("split", "ekf", "ukf", "bias"):
+                after = 0.0 if what == "drift" else 3.0
+                r = score_tilt(
+                    run_model(Tilt2D(kind=kind), stream, None),
+                    robot_truth(world),
+                    EvalOptions(after=after),
+                )
+                print(f"{seed:>4} {kind:>6} " + " ".join(f"{r[k]:10.3f}" for k in keys))
     return 0
 
 
