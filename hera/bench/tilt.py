@@ -57,12 +57,13 @@ def samples(steps: int, seed: int = 3) -> list[tuple[float, float, tuple[float, 
 def steppers() -> dict[str, Callable[[tuple], None]]:
     """One step function per filter (split, EKF, UKF, bias), fresh filters."""
     from hera.models.tilt.tilt import Tilt2D
+    from hera.store import Sample
 
     dt = 1.0 / 26.0
     out = {}
     for kind in ("split", "ekf", "ukf", "bias"):
         model = Tilt2D(kind=kind, start="any")
-        model._begin(0.0, [0.0, 9.81, 0.0, 0.01, 2.0])
+        model.process(Sample("imu", "bench", 1, 0.0, 0.0, 0.0, (0.0, 9.81, 0.0, 0.01, 2.0)))
         f = model.filter
         assert f is not None
 

@@ -88,7 +88,7 @@ def _per_mode(value: float | Sequence[float], what: str) -> tuple[float, ...]:
 class TofHeight:
     """A ToF height filter of one kind (see the module docstring).
 
-    Settings: ``kind``; ``names`` (input names, ["tof"]); ``sigma`` (m, range noise: R =
+    Settings: ``kind``; ``names`` (input names, ["vl53l1"]); ``sigma`` (m, range noise: R =
     sigma^2, seed 0.003); ``sigma_a`` (m/s^2, cv: seed task 2's 0.1); ``sigma_j`` (m/s^3,
     one or one per mode, 0 a still mode; default :data:`DEFAULT_SIGMA_J`); ``q_still``
     (m^2/s); ``q_tilt`` (rad^2/s, plane, one or one per mode: [1e-7, 0.02, 1e-3, 0.05]);
@@ -103,7 +103,7 @@ class TofHeight:
     def __init__(
         self,
         kind: str = "plane",
-        names: Sequence[str] = ("tof",),
+        names: Sequence[str] = ("vl53l1",),
         sigma: float = 0.003,
         sigma_a: float = 0.1,
         sigma_j: float | Sequence[float] | None = None,
@@ -243,7 +243,7 @@ class TofHeight:
     def process(self, sample: Sample) -> bool:
         """Fuse one reading (time order); True when the estimate changed."""
         v = sample.values
-        if len(v) < 6:
+        if len(v) != 6:  # not a vl53l1 sample
             self.counts["invalid"] += 1
             return False
         s = self.health.observe((sample.name, sample.node), sample.t, v)

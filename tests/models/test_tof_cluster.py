@@ -88,6 +88,24 @@ def test_the_stuck_sensor_is_reported_within_1_s_and_the_height_holds(tof_run):
         assert after["rmse_mm"] <= 5.0, (node, after)
 
 
+def test_hera_replay_of_the_readings_gives_the_filters_again(tof_run, tmp_path):
+    """The filters never read a clock: a replay of the recorded readings (the forecasts
+    recorded beside them are other names) gives the estimates at the readings' times."""
+    run, fault_t = tof_run
+    out = subprocess.run(
+        [sys.executable, "-m", "hera", "replay", str(run), "--out", str(tmp_path / "again")],
+        env=cluster_env(tmp_path),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    res = _scores(tmp_path / "again", fault_t)
+    before, after, series = res[("tof_plane", "replay")]
+    assert 700 < len(series) < 1200  # one estimate per valid reading: ~30 per second
+    assert before["rmse_mm"] <= 4.0 and after["rmse_mm"] <= 5.0, (before, after)
+
+
 def test_hera_eval_compares_the_models_in_one_table_and_one_plot(tof_run, tmp_path):
     run, _ = tof_run
     out = subprocess.run(

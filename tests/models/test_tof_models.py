@@ -26,7 +26,7 @@ def reading(node, t, d, status=0, mount=None, seq=1, rates=None):
     """A sample of the ``vl53l1`` measure; its noisy rates differ reading to reading."""
     x, y = mount if mount is not None else MOUNTS[node.split("_")[-1]]
     rates = rates if rates is not None else (0.3, 5.0 + 0.01 * math.sin(1000.0 * t))
-    return Sample("tof", node, seq, t, 0.0, 0.0, (d, *rates, float(status), x, y))
+    return Sample("vl53l1", node, seq, t, 0.0, 0.0, (d, *rates, float(status), x, y))
 
 
 def test_the_seeds_process_models():
@@ -112,8 +112,10 @@ def test_invalid_statuses_and_outliers_are_not_fused():
         assert not m.process(reading("tof_centre", t + 0.01 * status, 0.02, status, seq=100))
     assert not m.process(reading("tof_left", t + 0.1, 0.35, seq=101))  # a 20 cm outlier
     assert m.estimate()[1][0] == pytest.approx(before, abs=0.0005)
+    other = Sample("vl53l1", "tof_centre", 102, t + 0.2, 0, 0, (0.15, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0))
+    assert not m.process(other)  # not a vl53l1 reading (7 values): refused, counted
     c = m.counters()
-    assert c["invalid"] == 4 and c["gated"] == 1 and c["relocks"] == 0
+    assert c["invalid"] == 5 and c["gated"] == 1 and c["relocks"] == 0
     assert m.estimate()[1][-1] == 0.0  # no sensor faulty
 
 
@@ -125,12 +127,12 @@ def test_a_move_faster_than_the_model_relocks_instead_of_ignoring_the_board():
         m.process(reading("tof_centre", k * 0.1, 0.30, seq=k + 1))
     assert m.counters()["relocks"] == 1
     assert m.estimate()[1][0] == pytest.approx(0.30, abs=0.005)
-    assert m.counters()["code tof@tof_centre"] == OK  # one sensor cannot blame itself
+    assert m.counters()["code vl53l1@tof_centre"] == OK  # one sensor cannot blame itself
 
 
 def test_health_codes():
     h = SensorHealth(stuck_repeats=4, dead_s=0.5, invalid_run=3, gated_run=5)
-    keys = [("tof", n) for n in ("tof_left", "tof_centre", "tof_right")]
+    keys = [("vl53l1", n) for n in ("tof_left", "tof_centre", "tof_right")]
     vals = {k: [0.1, 0.3, 5.0, 0.0, *MOUNTS[k[1].split("_")[1]]] for k in keys}
     for i in range(4):
         for k in keys:
@@ -153,7 +155,7 @@ def test_health_codes():
     assert [h.sensors[k].code for k in keys] == [DEAD, DEAD, DEAD]
     c = h.counters()
     assert (c["stuck events"], c["inconsistent events"], c["dead events"]) == (1, 1, 3)
-    assert c["recoveries"] >= 1 and c["code tof@tof_right"] == DEAD
+    assert c["recoveries"] >= 1 and c["code vl53l1@tof_right"] == DEAD
 
 
 # -- offline accuracy over several seeds and worlds ---------------------------------------------
@@ -207,7 +209,7 @@ def test_with_one_sensor_stuck_or_dead_it_is_reported_within_1_s_and_height_hold
     late = Series("m", "n", series.columns, series.t[after], series.values[after])
     got = score_height(late, desk_truth(world), EvalOptions(after=0.0))
     assert got["rmse_mm"] <= 4.7, got
-    code = model.counters()[f"code tof@tof_{sensor}"]
+    code = model.counters()[f"code vl53l1@tof_{sensor}"]
     assert code == (STUCK if kind == "stuck" else DEAD)
 
 
