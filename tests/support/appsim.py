@@ -94,7 +94,7 @@ def tof_samples(
                 continue
             seq += 1
             sample = _sample("vl53l1", f"tof_{s}", seq, r.t, (*r.values(), *MOUNTS[s]))
-            out.append((t + 0.002 + 0.02, sample))  # transit, then the reorder hold
+            out.append((t + 0.002, sample))  # published when read, then the transit
             t += 0.1 + float(rng.normal(0.0, 0.0005))
     out.sort(key=lambda x: (x[0], x[1].node))
     return out
