@@ -12,11 +12,14 @@ calibrated value), the accelerometer corrects.
 
 Settings (all optional): ``names`` (["imu"]); ``sigma_acc`` (m/s^2, accelerometer noise
 including the robot's own accelerations: R = sigma_acc^2 I); ``q_theta`` (rad^2/s),
-``q_g`` ((m/s^2)^2/s), ``q_bias`` ((rad/s)^2/s): Q = diag(q) dt; ``theta_var0`` (rad^2),
-``g_var0``, ``bias_var0``; ``gate`` (probability of the chi-square gate on the
-accelerometer, None: none); ``start``; ``gap_rate`` (rad/s: when samples were lost, the
-gyroscope's sample covers only its own interval and theta's variance grows by (gap_rate x
-the rest)^2); ``max_dt`` (s: a longer gap restarts the filter);
+``q_g`` ((m/s^2)^2/s), ``q_bias`` ((rad/s)^2/s): Q = diag(q) dt; ``q_drift``
+((rad/s^2)^2/s; > 0 gives the bias filter a fourth state, the bias's rate of drift);
+``theta_var0`` (rad^2), ``g_var0``, ``bias_var0``; ``r_rate`` (rad/s) and ``r_accel``
+(rad/s^2): R grows by (1 + (w / r_rate)^2 + (dw/dt / r_accel)^2), w the robot's rate, for
+the accelerations it causes (None: the seed's constant R); ``gate`` (probability of the
+chi-square gate on the accelerometer, None: none); ``start``; ``gap_rate`` (rad/s: when
+samples were lost, the gyroscope's sample covers only its own interval and theta's variance
+grows by (gap_rate x the rest)^2); ``max_dt`` (s: a longer gap restarts the filter);
 ``ukf`` ([alpha, beta, kappa], kappa None: 3 - n).
 """
 
@@ -130,6 +133,7 @@ class Tilt2D:
         else:
             self.filter = LibraryFilter(self.kind, x0, P0, self.q, self.r, self.ukf)
         self.t = t
+        self._last_rate = None
 
     def process(self, sample: Sample) -> bool:
         """Fuse one IMU sample (time order); True when the estimate changed."""
