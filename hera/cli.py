@@ -12,7 +12,7 @@ import time
 from hera import tools
 from hera.client import ClusterClient, find_run_dir, pid_alive
 
-BENCHES = ("bus", "kalman", "sync", "scale", "console")
+BENCHES = ("bus", "kalman", "sync", "scale", "console", "tilt")
 
 
 HELP_EXAMPLES = {
