@@ -32,7 +32,6 @@ from hera.bus import BusConfig, open_session
 from hera.client import ClusterClient
 from hera.launcher import node_command
 from hera.security.access import OPERATOR
-from hera.security.certs import make_certs
 from hera.security.credentials import cert_hosts, secured
 from hera.spec import load_spec
 from hera.wire import encode
@@ -115,6 +114,8 @@ def latency(period: float, seconds: float, security: str = "auth") -> dict[str, 
         if security == "tls":
             (Path(certs) / "spec.toml").write_text(text)
             spec = load_spec(Path(certs) / "spec.toml")
+            from hera.security.certs import make_certs  # the tls extra
+
             make_certs(certs, spec.name, cert_hosts(spec))
         with running(text + SECURITY[security].format(certs=certs)) as c:
             time.sleep(seconds)

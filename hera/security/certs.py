@@ -25,26 +25,21 @@ import os
 from collections.abc import Iterable
 from pathlib import Path
 
-from cryptography import x509
-from cryptography.hazmat.primitives import hashes, serialization
-from cryptography.hazmat.primitives.asymmetric import ec
-from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+from hera.security.layout import CA_CERT, CA_KEY, cert_path, key_path  # noqa: F401
+
+try:
+    from cryptography import x509
+except ImportError as e:  # an extra: the default loopback cluster needs no certificate
+    raise ImportError(
+        "certificates need the cryptography package: pip install 'hera-fusion[tls]'"
+    ) from e
+from cryptography.hazmat.primitives import hashes, serialization  # noqa: E402
+from cryptography.hazmat.primitives.asymmetric import ec  # noqa: E402
+from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID  # noqa: E402
 
 from hera.security.secret import SECRET_FILE, make_secret
 
-CA_CERT = "ca.pem"
-CA_KEY = "ca.key"
 VALID_DAYS = 3650
-
-
-def cert_path(folder: str | os.PathLike, identity: str) -> Path:
-    """Where ``identity``'s certificate is in ``folder``."""
-    return Path(folder) / f"{identity}.pem"
-
-
-def key_path(folder: str | os.PathLike, identity: str) -> Path:
-    """Where ``identity``'s private key is in ``folder``."""
-    return Path(folder) / f"{identity}.key"
 
 
 def _write_private(path: Path, data: bytes) -> None:

@@ -22,7 +22,7 @@ from typing import Any
 
 from hera.bus import BusConfig
 from hera.security.access import OPERATOR, access_control
-from hera.security.certs import CA_CERT, cert_path, key_path
+from hera.security.layout import CA_CERT, cert_path, key_path
 from hera.security.secret import SECRET_FILE, SecretError, password, read_secret
 from hera.spec import ClusterSpec
 
