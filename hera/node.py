@@ -143,7 +143,9 @@ class Node:
                 raise FatalStart(f"its port {me} is in use by another process") from None
             raise
         self.data.attach(s)
-        if self.data.csv is not None:  # the logging node keeps every sender's samples
+        if self.spec.node(self.name).store == "all":  # a full mirror, for tools
+            self.data.want(None)
+        elif self.data.csv is not None:  # the logging node keeps every sender's samples
             self.data.want(self.spec.log_names or None)
         self.args = ArgsStore(
             self.name, s, self.keys, self.state_dir, self.spec.max_clock_skew_ms * 1_000_000

@@ -123,6 +123,12 @@ class NodeSpec:
         "endpoints it connects to (default: the routers of its host, else every router, "
         "else every other node)",
     )
+    store: str = setting(
+        "interest",
+        choice("interest", "all"),
+        "what its store takes: `interest` (the names its measures read) or `all` (every "
+        "sample of the cluster, for tools; the `[logging]` node takes what it logs too)",
+    )
 
 
 @dataclass(frozen=True)

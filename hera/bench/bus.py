@@ -55,6 +55,7 @@ name = "beacon"
 period = {period}
 [[nodes]]
 name = "b"
+store = "all"
 """
 
 
