@@ -6,7 +6,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import msgpack
 import pytest
@@ -243,9 +242,7 @@ def test_bad_payloads_are_rejected_counted_and_harmless(cluster, tmp_path):
     wait_for(lambda: seen_everywhere(c), 10, "a settled cluster")
     pids = {n.name: c.pid(n.name) for n in c.client.spec.nodes}
     nodes = [n.name for n in c.client.spec.nodes]
-    with open_session(
-        c.operator_bus(connect=tuple(c.client.spec.endpoint(n) for n in nodes))
-    ) as s:
+    with open_session(c.operator_bus(connect=tuple(c.client.spec.endpoint(n) for n in nodes))) as s:
         c.reached(s, nodes)
         for payload in BAD_PAYLOADS.values():
             s.put("hera/bad/data/evil/x", payload)
