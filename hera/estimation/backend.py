@@ -53,7 +53,10 @@ class _Kernels:
             raise AttributeError(name)
         # error_model="numpy": a division by zero gives inf/nan (which the kernels test
         # for) instead of a check and a Python exception on every division.
-        fn = numba.njit(sigs[name], cache=True, error_model="numpy")(getattr(self._mod, name))
+        opts = {"_nrt": False} if name in self._mod.NO_NRT else {}
+        fn = numba.njit(sigs[name], cache=True, error_model="numpy", **opts)(
+            getattr(self._mod, name)
+        )
         setattr(self, name, fn)
         return fn
 
