@@ -147,6 +147,12 @@ def _parser() -> argparse.ArgumentParser:
         help="start each model at the first sample NODE's live model fused and write "
         "estimates at the live estimates' instants (to compare a replay with a live node)",
     )
+    rp.add_argument(
+        "--smooth",
+        action="store_true",
+        help="also write RTS-smoothed estimates of each KF/EKF model to OUT/smoothed "
+        "(a run dir: hera eval OUT/smoothed scores them)",
+    )
 
     ev = _command(
         sub, "eval", "score a run through its applications, with plots", HELP_EXAMPLES["eval"]
@@ -424,7 +430,9 @@ def _replay(args: argparse.Namespace) -> int:
         like = live_schedule(args.recordings, args.start_like)
         if not like:
             raise ValueError(f"no live estimates of node {args.start_like!r} in the recordings")
-    counts = replay(args.recordings, args.out, chosen, args.node, like, progress=_progress)
+    counts = replay(
+        args.recordings, args.out, chosen, args.node, like, progress=_progress, smooth=args.smooth
+    )
     for name, n in counts.items():
         print(f"{name:<20} {n:>7} estimates -> {Path(args.out) / 'measures'}")
     return 0

@@ -17,6 +17,7 @@ from typing import Any
 from hera.fusion import FusionMeasure, model_counters, spec_models
 from hera.plugins import find_measure
 from hera.recordings import CsvWriter, read_recordings
+from hera.smoothing import NotSmoothable, SmoothedRun, smoothed_dir
 from hera.spec import ClusterSpec
 
 
@@ -70,6 +71,7 @@ def replay(
     node: str = "replay",
     like: Mapping[str, tuple[float, set[int]]] | None = None,
     progress: Callable[[str], None] | None = None,
+    smooth: bool = False,
 ) -> dict[str, int]:
     """Run each model (name -> (measure use, model params)) over ``recordings``; write its
     estimates to ``out``; return the number of estimates per model. ``progress`` is told
@@ -78,6 +80,9 @@ def replay(
     ``like`` (model name -> (start, instants), see :func:`live_schedule`) makes a replay of
     a live node: each model starts at the live model's first sample and writes estimates
     only at the live estimates' instants, so the two are compared on the same estimates.
+
+    ``smooth``: also write each model's RTS-smoothed estimates (see :mod:`hera.smoothing`);
+    a model that cannot be smoothed is said so through ``progress`` and left out.
     """
     instances = {}
     for name, (use, params) in models.items():
@@ -95,21 +100,38 @@ def replay(
         writer = CsvWriter(out, name, node, model.columns)
         t_start, instants = (like or {}).get(name, (float("-inf"), None))
         t_start -= CSV_RESOLUTION_S  # the recordings' times are rounded to the microsecond
+        smoother = _smoother(model, name, say) if smooth else None
         try:
             for s in samples:
                 if s.t >= t_start and s.name in model.inputs and model.process(s):
                     t, values = model.estimate()
                     if instants is None or round(t * 1e6) in instants:
                         writer.write(t, values)
+                        if smoother is not None:
+                            smoother.mark(t)
         finally:
             writer.close()
         counts[name] = writer.seq
         write_counters(out, name, node, model_counters(model))
         say(f"[{i}/{len(instances)}] {name}: {writer.seq} estimates")
+        if smoother is not None:
+            rows = smoother.write(out, name, node, model.columns)
+            say(f"{name}: {rows} smoothed estimates -> {smoothed_dir(out) / 'measures'}")
     src = Path(recordings) / "cluster.json"
     if src.exists() and Path(out).resolve() != Path(recordings).resolve():
         shutil.copy(src, Path(out) / "cluster.json")  # the world, for hera eval
+        if smooth and smoothed_dir(out).exists():
+            shutil.copy(src, smoothed_dir(out) / "cluster.json")
     return counts
+
+
+def _smoother(model: Any, name: str, say: Callable[[str], None]) -> SmoothedRun | None:
+    """``--smooth``: a recorder of the model's filter, or None (said) if it has none."""
+    try:
+        return SmoothedRun(model, f"model {name!r}")
+    except NotSmoothable as e:
+        say(str(e))
+        return None
 
 
 def write_counters(out: str | Path, name: str, node: str, counters: Mapping[str, int]) -> Path:
