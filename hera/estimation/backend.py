@@ -126,13 +126,11 @@ class _Kernels:
             fn = self.__dict__.get(name)
             if fn is not None:
                 return fn
-            # error_model="numpy": a division by zero gives inf/nan (which the kernels test
-            # for) instead of a check and a Python exception on every division.
-            opts = {"_nrt": False} if name in self._mod.NO_NRT else {}
+            opts = dict(self._mod.OPTIONS)
+            if name in self._mod.NO_NRT:
+                opts["_nrt"] = False
             with _numba_cache_dir(self.cache):
-                fn = numba.njit(sigs[name], cache=True, error_model="numpy", **opts)(
-                    getattr(self._mod, name)
-                )
+                fn = numba.njit(sigs[name], **opts)(getattr(self._mod, name))
             setattr(self, name, fn)
             return fn
 
@@ -145,9 +143,7 @@ class _Kernels:
         cache (a different one of any of these compiles again, as numba would)."""
         import numba
 
-        h = hashlib.sha256()
-        for src in (self._mod.__file__, __file__):
-            h.update(Path(src).read_bytes())
+        h = hashlib.sha256(Path(self._mod.__file__).read_bytes())
         h.update(f"{numba.__version__} {sys.version} {sys.platform}".encode())
         with contextlib.suppress(Exception):  # the CPU numba compiles for (name, features)
             from numba.core.registry import cpu_target
@@ -234,13 +230,14 @@ def set_backend(name: str) -> str:
 
 def prefer(name: str) -> None:
     """Select ``name`` (as ``set_backend``) when the first filter is made, not now: nothing
-    is imported or compiled for a process that never makes one. ValueError for an unknown
-    name."""
-    global _active, _preferred
+    is imported or compiled for a process that never makes one (once a filter exists, the
+    choice applies at once). ValueError for an unknown name."""
+    global _preferred
     name = _check_name(name)
     with _lock:
         _preferred = name
-        _active = _UNRESOLVED
+        if _active is not _UNRESOLVED:  # a filter exists already: the choice applies now
+            set_backend(name)
 
 
 def active_kernels() -> Any:

@@ -1042,6 +1042,13 @@ SIGNATURES = {
     "ukf_update_dev": [_I(_c1, _c2, _r2, _r2, _r1, _r1, _B, _ri, _r1, _c1r, _c1, _c2, _c1)],
 }
 
+# How ``backend`` compiles every kernel. Kept in this file on purpose: numba's cache is keyed
+# by this file's content (and the signature), not by compile options, so an option changed
+# anywhere else would load machine code compiled with the old one. error_model="numpy": a
+# division by zero gives inf/nan (which the kernels test for) instead of a check and a
+# Python exception on every division.
+OPTIONS = {"cache": True, "error_model": "numpy"}
+
 # Kernels that allocate nothing (every intermediate in ``ws``, results in the given output
 # arrays) are compiled without numba's reference-counted memory manager (NRT): their array
 # arguments are then passed as plain pointers, which halves the cost of a call (about

@@ -68,3 +68,18 @@ def test_a_node_loads_numba_only_when_a_measure_makes_a_filter(choice):
         "after import: False",
         f"after filter: {compiled} {'numba' if compiled else 'numpy'}",
     ]
+
+
+def test_prefer_once_a_filter_exists_applies_at_once_and_filters_keep_working(use):
+    from hera.estimation import KalmanFilter, Observations
+
+    import numba  # noqa: F401  (a test requirement: "auto" is numba here)
+
+    use("numpy")
+    kf = KalmanFilter([0.0], [[1.0]], F=[[1.0]], Q=0.1)
+    for name in ("auto", "numpy"):
+        backend.prefer(name)
+        assert backend._active is not backend._UNRESOLVED
+        assert backend.backend() == ("numpy" if name == "numpy" else "numba")
+        kf.predict(0.1)
+        assert kf.update(Observations().add("z", [1.0], H=[[1.0]], R=0.5)).accepted == ["z"]
