@@ -71,9 +71,9 @@ def test_a_node_loads_numba_only_when_a_measure_makes_a_filter(choice):
 
 
 def test_prefer_once_a_filter_exists_applies_at_once_and_filters_keep_working(use):
-    from hera.estimation import KalmanFilter, Observations
-
     import numba  # noqa: F401  (a test requirement: "auto" is numba here)
+
+    from hera.estimation import KalmanFilter, Observations
 
     use("numpy")
     kf = KalmanFilter([0.0], [[1.0]], F=[[1.0]], Q=0.1)
