@@ -120,8 +120,8 @@ def replay(
     src = Path(recordings) / "cluster.json"
     if src.exists() and Path(out).resolve() != Path(recordings).resolve():
         shutil.copy(src, Path(out) / "cluster.json")  # the world, for hera eval
-        if smooth and smoothed_dir(out).exists():
-            shutil.copy(src, smoothed_dir(out) / "cluster.json")
+    if src.exists() and smooth and smoothed_dir(out).exists():
+        shutil.copy(src, smoothed_dir(out) / "cluster.json")
     return counts
 
 
