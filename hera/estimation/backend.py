@@ -8,7 +8,7 @@ the platforms it publishes wheels for; without it everything runs on the numpy p
 the same results (to roundoff) and the same errors.
 
 Compiled once per machine: the first process that selects numba compiles every kernel
-(about 30 s on a 2-core machine), printing one line to stderr before and one after, and
+(30-60 s on a 2-core machine), printing one line to stderr before and one after, and
 numba stores the machine code in :func:`cache_dir` (a per-user directory, so a read-only
 site-packages is fine); a marker file there records the complete set, and later processes
 load the kernels from the cache in well under a second. Processes that start at the same
@@ -168,7 +168,7 @@ class _Kernels:
         names = self.names
         print(
             f"hera.estimation: compiling {len(names)} numba kernels for this machine, once "
-            f"(about 30 s; cached in {self.cache}) ...",
+            f"(30-60 s; cached in {self.cache}) ...",
             file=sys.stderr,
             flush=True,
         )
