@@ -191,7 +191,8 @@ class ClusterSpec:
     estimation_backend: str = setting(
         "numpy",
         choice("numpy", "numba", "auto"),
-        "`numba` compiles the estimation kernels at node start; `auto` uses numba if installed",
+        "`numba`: compiled estimation kernels, loaded when a measure makes its first filter; "
+        "`auto` uses numba if installed",
         table="cluster",
     )
     strategy: str = setting(
