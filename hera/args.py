@@ -19,12 +19,12 @@ import contextlib
 import logging
 import os
 import threading
-import time
 from pathlib import Path
 from typing import Any
 
 import msgpack
 
+from hera import wallclock
 from hera.bus import query_all
 from hera.keys import Keys, check_chunk
 
@@ -83,7 +83,7 @@ class ArgsStore:
         value msgpack cannot carry."""
         for chunk in key.split("/"):
             check_chunk(chunk, "args key element")
-        stamp = time.time_ns()
+        stamp = wallclock.now_ns()
         payload = _pack(stamp, self.node, value)  # fails early on unpackable values
         self._merge(key, stamp, self.node, value)
         if self._session is not None:

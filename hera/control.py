@@ -6,7 +6,9 @@ Runtime verbs:
 - ``start`` / ``stop`` ``{"measure"}``: start or stop one of its measures;
 - ``inject`` ``{"fault": "crash" | "hang", "measure"}`` or ``{"fault": "crash_node"}``;
 - ``args``: every replicated arg; ``store`` ``{"name"?}``: the samples its store holds;
-- ``shutdown``: stop the node (exit 0).
+- ``shutdown``: stop the node (exit 0);
+- ``clock`` ``{"skew_s"?}``: set the offset of the node's wall clock (a host's clock skew,
+  :mod:`hera.wallclock`); without ``skew_s`` only read it.
 
 Applications add verbs through :meth:`hera.application.Application.verbs` (the simulator's
 ``board`` verb injects board faults); an unknown verb is looked up among the installed
@@ -24,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 
+from hera import wallclock
 from hera.application import VerbContext
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -32,7 +35,7 @@ if TYPE_CHECKING:  # pragma: no cover
 log = logging.getLogger("hera.control")
 
 EXIT_INJECTED_CRASH = 70
-RUNTIME_VERBS = ("status", "start", "stop", "inject", "args", "store", "shutdown")
+RUNTIME_VERBS = ("status", "start", "stop", "inject", "args", "store", "shutdown", "clock")
 
 
 class ControlPlane:
@@ -97,6 +100,12 @@ class ControlPlane:
         if verb == "shutdown":
             threading.Timer(0.05, node.stop).start()
             return {"stopping": node.name}
+        if verb == "clock":
+            if "skew_s" in request:
+                before = wallclock.set_offset(request["skew_s"])
+                log.warning("clock skew of node %s set to %+.3f s", node.name, wallclock.offset())
+                return {"skew_s": wallclock.offset(), "was_s": before}
+            return {"skew_s": wallclock.offset()}
         handler = self._app_verb(verb)
         ctx = VerbContext(node.name, node.spec.name, node.spec.world, node.resources)
         return dict(handler(request, ctx))

@@ -35,7 +35,7 @@ from typing import Any
 import zenoh
 
 from hera.args import ArgsStore
-from hera.bus import BusConfig, open_session, tcp_endpoint
+from hera.bus import BusConfig, open_session, tcp_endpoint, with_overrides
 from hera.control import EXIT_INJECTED_CRASH, ControlPlane
 from hera.csvlog import CsvLog
 from hera.datapath import DataPath
@@ -127,6 +127,10 @@ class Node:
         bus = BusConfig(
             listen=(me,), connect=tuple(e for e in others if e != me), lease_ms=self.spec.lease_ms
         )
+        try:
+            bus = with_overrides(bus, self.name)
+        except ValueError as e:
+            raise FatalStart(str(e)) from None
         try:
             self.session = s = open_session(bus)
         except zenoh.ZError as e:

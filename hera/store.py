@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
+from hera import wallclock
 from hera.wire import Message
 
 
@@ -54,7 +55,8 @@ class Store:
     def offer(self, name: str, node: str, msg: Message, arrival: float | None = None) -> bool:
         """Store ``msg`` for (name, node) if its seq is newer; return whether it was kept."""
         mono = time.monotonic() if arrival is None else arrival
-        sample = Sample(name, node, msg.seq, msg.t, mono, time.time(), msg.values, msg.grant)
+        wall = wallclock.now()
+        sample = Sample(name, node, msg.seq, msg.t, mono, wall, msg.values, msg.grant)
         with self._cond:
             per_name = self._data.setdefault(name, {})
             held = per_name.get(node)
