@@ -48,6 +48,7 @@ class ArgsStore:
         self._keys = keys
         self._path = Path(state_dir) / self.FILE if state_dir is not None else None
         self._lock = threading.Lock()
+        self._save_lock = threading.Lock()  # one save at a time: the last one is the newest
         self._entries: dict[str, tuple[int, str, Any]] = {}
         self.rejected = 0
         self._sub = self._queryable = None
@@ -154,14 +155,19 @@ class ArgsStore:
             log.error("ignoring unreadable args file %s: %s", self._path, e)
 
     def _save(self) -> None:
+        """Write every entry to the state file (atomically). Saves are serialised and each
+        takes its snapshot inside the save: two threads saving at once used to let the
+        older snapshot replace the newer file (a calibration stored by one measure while
+        another measure's was being written was lost on disk)."""
         if self._path is None:
             return
-        with self._lock:
-            data = {k: list(e) for k, e in self._entries.items()}
-        self._path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self._path.with_suffix(f".tmp{threading.get_ident()}")
-        tmp.write_bytes(msgpack.packb(data, use_bin_type=True))
-        os.replace(tmp, self._path)
+        with self._save_lock:
+            with self._lock:
+                data = {k: list(e) for k, e in self._entries.items()}
+            self._path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = self._path.with_suffix(".tmp")
+            tmp.write_bytes(msgpack.packb(data, use_bin_type=True))
+            os.replace(tmp, self._path)
 
 
 def _pack(stamp: int, origin: str, value: Any) -> bytes:
