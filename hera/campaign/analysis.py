@@ -140,6 +140,19 @@ def effect_time(h: History, f: FaultRecord) -> float | None:
     return f.start
 
 
+def detection_expected(h: History, f: FaultRecord) -> bool:
+    """Whether the cluster must notice the fault: a killed node always (its sockets close);
+    a stopped node or a cut link only when it lasted a whole link lease (a shorter stall is
+    no failure to the bus, by design: ``[cluster] lease_ms``)."""
+    if f.start is None:
+        return False
+    if f.kind in ("kill", "crash_node"):
+        return True
+    if f.kind in ("pause", "partition"):
+        return (f.until or f.start) - f.start >= h.spec.lease_ms / 1000.0
+    return False
+
+
 def detect(h: History, f: FaultRecord) -> float | None:
     """Seconds from the fault to the cluster noticing it (module docstring), or None."""
     if f.start is None:
@@ -302,6 +315,7 @@ def fault_figures(h: History, horizon: float) -> list[dict[str, Any]]:
             {
                 "fault": f,
                 "detect": detect(h, f),
+                "detect_expected": detection_expected(h, f),
                 "recover": rec,
                 "per_stream": per,
                 "flow": flow(h, f, until),

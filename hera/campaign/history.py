@@ -369,12 +369,12 @@ def fault_records(plan: Iterable[Planned], events: list[dict[str, Any]]) -> list
     return [recs[i] for i in sorted(recs)]
 
 
-def read_persisted(run_dir: Path) -> dict[str, dict[str, Any]]:
-    """Each node's persisted args (``state/<node>/args.msgpack``)."""
+def read_persisted(state_dir: Path) -> dict[str, dict[str, Any]]:
+    """Each node's persisted args (``<state_dir>/<node>/args.msgpack``)."""
     import msgpack
 
     out = {}
-    for path in sorted((Path(run_dir) / "state").glob("*/args.msgpack")):
+    for path in sorted(Path(state_dir).glob("*/args.msgpack")):
         try:
             out[path.parent.name] = msgpack.unpackb(path.read_bytes(), raw=False)
         except Exception:
@@ -406,6 +406,6 @@ def load(folder: str | Path) -> History:
         firings=read_firings(folder, meta.get("fire_logs", {}), offset),
         args_seen=read_args_seen(folder),
         final=_json(folder / FINAL, {}),
-        persisted=read_persisted(folder / RUN),
+        persisted=read_persisted(meta.get("state_dir") or folder / RUN / "state"),
         leftovers=_json(folder / LEFTOVERS, []),
     )

@@ -68,7 +68,7 @@ def fault_rows(h: History) -> list[dict[str, Any]]:
             "#": f.planned.index + 1,
             "fault": f.name,
             "kind": f.kind,
-            "hit": ",".join(f.nodes) or "-",
+            "hit": " | ".join(",".join(g) for g in f.groups) or ",".join(f.nodes) or "-",
             "at s": "-" if f.start is None else f"{f.start - t0:.1f}",
             "lasted": _s(None if f.start is None else (f.until or f.start) - f.start),
             "detect": _s(fig["detect"]),

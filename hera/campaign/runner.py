@@ -142,6 +142,15 @@ def with_fire_logs(spec: ClusterSpec, audit: Path) -> tuple[ClusterSpec, dict[st
     return replace(spec, nodes=tuple(nodes)), logs
 
 
+def _die_with_parent() -> None:
+    """In a child before exec (Linux): get SIGTERM when the campaign dies, so that ``hera
+    up`` stops its nodes even if the campaign is SIGKILLed (``PR_SET_PDEATHSIG``)."""
+    import ctypes
+
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
+
+
 def _ancestors() -> set[int]:
     """This process and its ancestors (whose command lines may name the folder too: a
     shell, ``flock``)."""
@@ -233,6 +242,7 @@ class CampaignRun:
         self.holding = False
         self.settle_error: str | None = None
         self.error: str | None = None
+        self.state_dir: Path | None = None
 
     # -- output -------------------------------------------------------------------------
     def say(self, text: str) -> None:
@@ -254,6 +264,7 @@ class CampaignRun:
             "times": self.times,
             "clock_offset": self.clock_offset,
             "fire_logs": self.fire_logs,
+            "state_dir": str(self.state_dir) if self.state_dir else None,
             "interrupted": self.interrupted,
             "settle_error": self.settle_error,
             "error": self.error,
@@ -270,6 +281,8 @@ class CampaignRun:
         from hera.campaign import checkers, report
 
         self.command = command or f"hera campaign {self.spec.source} {self.campaign.source}"
+        if "--seed" not in self.command.split():
+            self.command += f" --seed {self.seed}"  # the command that repeats this schedule
 
         wall, clock = journal.now()
         self.clock_offset = wall - clock
@@ -364,6 +377,9 @@ class CampaignRun:
         if self.attach:
             run_dir = self.cluster_dir
             (f / history.RUN).symlink_to(run_dir)
+            # hera up keeps state in the run dir given to it, else beside the runs
+            beside = run_dir.parent / f"{self.spec.name}.state"
+            self.state_dir = run_dir / "state" if (run_dir / "state").is_dir() else beside
         else:
             run_dir = f / history.RUN
             with open(f / history.LAUNCHER_OUT, "ab") as out:
@@ -376,6 +392,7 @@ class CampaignRun:
                     stdin=subprocess.DEVNULL,
                     env=env,
                     start_new_session=True,
+                    preexec_fn=_die_with_parent if os.name == "posix" else None,
                 )
             self._wait_listening()
         self._mark("started")
@@ -464,9 +481,10 @@ class CampaignRun:
             err = journal.read(self.folder)[-1].get("error")
             self.say(f"fault {p.index + 1}/{len(self.plan)} {p.name}: FAILED: {err}")
             return
+        hit = " | ".join(",".join(g) for g in act.undo.get("groups", ())) or ", ".join(act.nodes)
         self.say(
             f"fault {p.index + 1}/{len(self.plan)} {p.name} ({p.kind} {what}) -> "
-            f"{', '.join(act.nodes) or '-'}" + (f" for {p.duration:g} s" if p.duration else "")
+            f"{hit or '-'}" + (f" for {p.duration:g} s" if p.duration else "")
         )
         if p.duration or p.kind in NETWORK:
             self.stopping.wait(p.duration)

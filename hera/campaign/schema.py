@@ -138,7 +138,12 @@ FAULT_TABLE = Table(
     [
         Setting("name", STR, None, "a label (default: kind and target)"),
         Setting("kind", choice(*KINDS), REQUIRED, "what to do"),
-        Setting("target", STR, None, "a node, `leader:<group>`, `follower:<group>`, `random`"),
+        Setting(
+            "target",
+            STR,
+            None,
+            "a node, `leader:<group>`, `follower:<group>`, `host:<group>`, `random`",
+        ),
         Setting("measure", STR, None, "crash, hang: the measure"),
         Setting("board", STR, None, "board: the board id (`<node>/<board>`)"),
         Setting("fault", STR, None, "board: the board fault (stuck, dropout, spikes, ...)"),
@@ -550,3 +555,20 @@ def resolve_campaign(arg: str) -> Path:
             f"(campaigns: {', '.join(known) or 'none'})"
         ]
     )
+
+
+def reference() -> str:
+    """The Markdown reference of every table of a campaign file (README "Fault campaigns")."""
+    parts = []
+    for title, table in (
+        ("`[campaign]`", CAMPAIGN_TABLE),
+        ("`[[faults]]`", FAULT_TABLE),
+        ("`[nemesis]` (and `[nemesis.<kind>]`: the ranges of a kind's settings)", NEMESIS_TABLE),
+        ("`[checks]`", CHECKS_TABLE),
+        ("`[checks.estimates]`", ESTIMATES_TABLE),
+        ("`[checks.agreement]`", AGREEMENT_TABLE),
+        ("`[[figures]]`", FIGURE_TABLE),
+        ("`[short]`", SHORT_TABLE),
+    ):
+        parts.append(f"{title}\n\n{table.markdown()}")
+    return "\n\n".join(parts)

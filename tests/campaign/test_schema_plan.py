@@ -131,3 +131,17 @@ def test_a_scripted_schedule_runs_in_order_with_its_gaps():
     short = c.shortened()
     assert [p.name for p in make_plan(short, TRAIN, 1)] == list(c.short["faults"])
     assert short.baseline_s < c.baseline_s
+
+
+def test_the_readme_campaign_reference_is_generated_from_the_declarations():
+    import re
+    from pathlib import Path
+
+    from hera.campaign.schema import reference
+
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    body = re.search(
+        r"<!-- campaign-reference[^>]*-->\n(.*?)\n<!-- /campaign-reference -->", readme, re.S
+    )
+    assert body is not None, "the README lost its campaign reference markers"
+    assert body.group(1) == reference(), "put hera.campaign.schema.reference() there"
