@@ -148,5 +148,5 @@ def test_an_unknown_control_verb_lists_the_runtime_and_application_verbs():
         plane.handle("bored", {})
     assert str(e.value) == (
         "unknown control verb 'bored': use status, start, stop, inject, args, store, "
-        "shutdown, board"
+        "shutdown, clock, board"
     )
