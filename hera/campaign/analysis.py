@@ -148,8 +148,12 @@ def detection_expected(h: History, f: FaultRecord) -> bool:
         return False
     if f.kind in ("kill", "crash_node"):
         return True
-    if f.kind in ("pause", "partition"):
-        return (f.until or f.start) - f.start >= h.spec.lease_ms / 1000.0
+    lease = h.spec.lease_ms / 1000.0
+    if f.kind == "pause":
+        return (f.until or f.start) - f.start >= lease
+    if f.kind == "partition":  # a flapping one: each cut on its own
+        longest = f.planned.get("flap_on_s") or max((b - a for a, b in f.cuts()), default=0.0)
+        return longest >= lease
     return False
 
 
