@@ -3,21 +3,22 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import importlib
 import json
 import logging
 import sys
 import time
 
+from hera import tools
 from hera.client import ClusterClient, find_run_dir, pid_alive
 
-BENCHES = ("bus", "kalman", "sync")
+BENCHES = ("bus", "kalman", "sync", "scale", "console", "tilt")
 
 
 HELP_EXAMPLES = {
     "up": "hera up train",
     "node": "hera node deploy/train.toml --node sonar_1",
+    "router": "hera router deploy/two_hosts.toml --name r_a",
     "status": "hera status nav_1",
     "down": "hera down --cluster train",
     "inject": "hera inject n3 crash obs1\n  hera inject sonar_1 board stuck --board sonar_1/sonar"
@@ -30,6 +31,7 @@ HELP_EXAMPLES = {
     "replay": "hera replay hera-run/train --out replayed --models e7,e8",
     "eval": "hera eval hera-run/train",
     "bench": "hera bench kalman --quick",
+    "certs": "hera certs deploy/two_hosts.toml --out certs",
     "start": "start with:\n  hera up train            a cluster, its live view\n"
     "  hera eval hera-run/train score the run",
 }
@@ -69,6 +71,21 @@ def _parser() -> argparse.ArgumentParser:
     )
     up.add_argument("--overwrite", action="store_true", help="replace a previous run in --run-dir")
     up.add_argument("--interval", type=float, default=1.0, help="status refresh period, s")
+    up.add_argument(
+        "--only",
+        help="comma-separated nodes and routers to run on this host (default: all of them)",
+    )
+    cert_help = "folder made by 'hera certs' (its certificates, or its cluster secret)"
+    up.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
+    up.add_argument(
+        "--web",
+        nargs="?",
+        type=int,
+        const=8765,
+        metavar="PORT",
+        help="serve the live web view on 127.0.0.1:PORT (default 8765; 0: any free port)",
+    )
+    up.add_argument("--mcap", metavar="OUT", help="record every sample live to an MCAP file")
 
     node = _command(
         sub,
@@ -82,6 +99,30 @@ def _parser() -> argparse.ArgumentParser:
     node.add_argument("--state-dir", help="where the node persists its args (calibrations)")
     node.add_argument("--parent-pid", type=int, help="stop when this process is gone")
     node.add_argument("--log-level", default="INFO")
+    node.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
+
+    rt = _command(
+        sub,
+        "router",
+        "run one Zenoh router of a spec (hera up runs the ones it is asked to)",
+        HELP_EXAMPLES["router"],
+    )
+    rt.add_argument("spec", help="cluster spec (TOML, an example's name, or a cluster.json)")
+    rt.add_argument("--name", required=True, help="name of the router to run")
+    rt.add_argument("--parent-pid", type=int, help="stop when this process is gone")
+    rt.add_argument("--log-level", default="INFO")
+    rt.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
+
+    ce = _command(
+        sub,
+        "certs",
+        "make a cluster CA, a certificate per node, router and operator, and the secret",
+        HELP_EXAMPLES["certs"],
+    )
+    ce.add_argument(
+        "spec", help="cluster spec (its nodes' and routers' hosts name the certificates)"
+    )
+    ce.add_argument("--out", required=True, metavar="DIR", help="folder to write them to")
 
     st = _command(
         sub,
@@ -111,8 +152,21 @@ def _parser() -> argparse.ArgumentParser:
     inj.add_argument("--peers", help="network faults: only the links to these nodes (a,b)")
     inj.add_argument("--jitter", type=float, default=0.0, help="delay: +/- this much, ms")
     for s in (st, dn, inj):
-        s.add_argument("--run-dir", help="run directory of the cluster")
+        s.add_argument("--run-dir", help="run directory of the cluster (on this host)")
         s.add_argument("--cluster", help="name of the cluster, if several run")
+        s.add_argument(
+            "--connect",
+            action="append",
+            metavar="ENDPOINT",
+            help="reach the cluster through this node or router (e.g. tcp/10.0.0.2:7447), "
+            "from any host: no run directory needed (repeatable)",
+        )
+        s.add_argument(
+            "--cert",
+            metavar="DIR",
+            help="with --connect: the operator's credentials, a folder made by 'hera certs' "
+            "(default: those of the cluster run from this host)",
+        )
 
     ms = _command(
         sub, "measures", "list the installed measures, or show one", HELP_EXAMPLES["measures"]
@@ -183,6 +237,8 @@ def _parser() -> argparse.ArgumentParser:
         "--attach", action="store_true", help="use the running cluster of SPEC (no network faults)"
     )
 
+    tools.add_parsers(sub, _command)
+
     b = _command(sub, "bench", "run a benchmark: " + ", ".join(BENCHES), HELP_EXAMPLES["bench"])
     b.add_argument("name", choices=BENCHES)
     b.add_argument("rest", nargs=argparse.REMAINDER, help="options of that benchmark")
@@ -206,8 +262,9 @@ def _dispatch(args: argparse.Namespace, argv: list[str] | None = None) -> int:
         from hera.node import run_node
         from hera.preflight import check_spec
 
-        spec = check_spec(_load(args.spec))
+        spec = check_spec(_load(args.spec, args.cert))
         spec.node(args.node)  # an unknown node is a bad command line, before any logging
+        spec = _lone_secret(spec, args.run_dir)
         logging.basicConfig(
             level=args.log_level.upper(),
             format=f"%(asctime)s {args.node} %(name)s %(levelname)s %(message)s",
@@ -218,10 +275,33 @@ def _dispatch(args: argparse.Namespace, argv: list[str] | None = None) -> int:
         from hera.launcher import Launcher
 
         spec = resolve_spec(args.spec)
+        only = [x.strip() for x in args.only.split(",") if x.strip()] if args.only else None
         launcher = Launcher(
-            spec, args.run_dir, args.duration, interval=args.interval, overwrite=args.overwrite
+            spec,
+            args.run_dir,
+            args.duration,
+            interval=args.interval,
+            overwrite=args.overwrite,
+            only=only,
+            cert=args.cert,
+            web=args.web,
+            mcap=args.mcap,
         )
         return launcher.run()
+    if args.cmd == "router":
+        from hera.router import run_router
+
+        spec = _load(args.spec, args.cert)
+        spec.router(args.name)
+        logging.basicConfig(
+            level=args.log_level.upper(),
+            format=f"%(asctime)s {args.name} %(name)s %(levelname)s %(message)s",
+        )
+        return run_router(spec, args.name, args.parent_pid)
+    if args.cmd == "certs":
+        return _certs(args)
+    if args.cmd in tools.COMMANDS:
+        return tools.run(args)
     if args.cmd == "status":
         return _status(args)
     if args.cmd == "down":
@@ -263,12 +343,58 @@ def _dispatch(args: argparse.Namespace, argv: list[str] | None = None) -> int:
     raise AssertionError(args.cmd)
 
 
-def _load(spec_arg: str):
-    """The spec a command line names (a file, or an example's name)."""
+def _load(spec_arg: str, cert: str | None = None):
+    """The spec a command line names (a file, or an example's name), with ``--cert``."""
+    from pathlib import Path
+
     from hera.examples import resolve_spec
     from hera.spec import load_spec
 
-    return load_spec(resolve_spec(spec_arg))
+    spec = load_spec(resolve_spec(spec_arg))
+    return spec if cert is None else spec.with_security(certs=str(Path(cert).resolve()))
+
+
+def _lone_secret(spec, run_dir: str | None):
+    """A node run by hand with authentication on and no credentials (no ``--cert``, no
+    ``[security] certs``, not a ``hera up`` cluster.json) makes its own secret: in its run
+    directory, else in a private temporary folder removed at exit. It can join no other
+    node, which is what it says in its log."""
+    import atexit
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    from hera.security.secret import SECRET_FILE, make_secret
+
+    if not spec.auth or spec.tls or spec.certs or spec.secret:
+        return spec
+    if run_dir is not None:
+        folder = Path(run_dir)
+    else:
+        folder = Path(tempfile.mkdtemp(prefix="hera-node-"))
+        atexit.register(shutil.rmtree, folder, True)
+    path = folder / SECRET_FILE
+    if not path.exists():
+        make_secret(path)
+    logging.getLogger("hera.node").warning(
+        "no cluster credentials given: this node made its own secret (%s) and can join no "
+        "other node; give --cert DIR (made by 'hera certs') to join a cluster",
+        path,
+    )
+    return spec.with_security(secret=str(path.resolve()))
+
+
+def _certs(args: argparse.Namespace) -> int:
+    from hera.security.certs import make_certs
+    from hera.security.credentials import cert_hosts
+
+    spec = _load(args.spec)
+    written = make_certs(args.out, spec.name, cert_hosts(spec))
+    print(f"cluster {spec.name}: CA {args.out}/ca.pem (keep ca.key off the cluster's hosts)")
+    for path in written:
+        print(f"  {path}")
+    print(f"  {args.out}/secret (the cluster secret, for links without TLS)")
+    return 0
 
 
 def _measures(args: argparse.Namespace) -> int:
@@ -302,22 +428,48 @@ def _measures(args: argparse.Namespace) -> int:
     return 0
 
 
+def _client(args: argparse.Namespace) -> ClusterClient:
+    """The cluster a tool command talks to: through ``--connect`` endpoints (any host), or
+    the one registered on this host (``--run-dir``, ``--cluster``, or the only one)."""
+    if args.connect:
+        return ClusterClient.connect(
+            args.connect, args.cluster, credentials=_tool_credentials(args)
+        )
+    return ClusterClient.from_run_dir(find_run_dir(args.run_dir, args.cluster))
+
+
+def _tool_credentials(args: argparse.Namespace):
+    """The operator's credentials of a tool run with ``--connect``: from ``--cert DIR``, else
+    those of the cluster this host runs (``--run-dir``, ``--cluster`` or the only one)."""
+    from hera.security.access import OPERATOR
+    from hera.security.credentials import for_operator, for_spec
+    from hera.spec import load_spec
+
+    if args.cert:
+        return for_operator(args.cert, args.connect)
+    try:
+        run_dir = find_run_dir(args.run_dir, args.cluster)
+    except LookupError:
+        raise LookupError(
+            "--connect needs the operator's credentials: give --cert DIR (a folder made by "
+            "'hera certs'), or run it on a host that runs the cluster"
+        ) from None
+    return for_spec(load_spec(run_dir / "cluster.json"), OPERATOR)
+
+
 def _status(args: argparse.Namespace) -> int:
     from hera.client import running_clusters
     from hera.statusview import render_node, render_status
 
-    if args.run_dir is None and args.cluster is None and len(running_clusters()) > 1:
+    if not (args.connect or args.run_dir or args.cluster) and len(running_clusters()) > 1:
         print("clusters running (pick one with --cluster NAME or --run-dir DIR):")
         for c in running_clusters():
             print(f"  {c['cluster']:<16} launcher {c['launcher_pid']:<8} {c['run_dir']}")
         return 0
-    run_dir = find_run_dir(args.run_dir, args.cluster)
-    launcher = {}
-    with contextlib.suppress(OSError, ValueError, KeyError):
-        launcher = json.loads((run_dir / "launcher.json").read_text())["nodes"]
-    with ClusterClient.from_run_dir(run_dir) as client:
+    with _client(args) as client:
         if args.node is not None:
-            client.spec.node(args.node)  # an unknown node lists the known ones
+            if client.spec is not None:
+                client.spec.node(args.node)  # an unknown node lists the known ones
             reply = client.query(args.node, "status", timeout=1.0).get(args.node)
             if reply is None:
                 print(f"hera status: node {args.node!r} did not answer", file=sys.stderr)
@@ -325,14 +477,15 @@ def _status(args: argparse.Namespace) -> int:
             print(json.dumps(reply, indent=1) if args.json else render_node(reply))
             return 0
         status = client.status(timeout=1.0)
+        launched = client.launched()
         if args.json:
             print(
                 json.dumps(
-                    {"cluster": client.spec.name, "nodes": status, "launcher": launcher}, indent=1
+                    {"cluster": client.cluster, "nodes": status, "launcher": launched}, indent=1
                 )
             )
         else:
-            print(render_status(client.spec.name, status, launcher, run_dir=str(run_dir)))
+            print(render_status(client.cluster, status, launched))
     return 0 if status else 1
 
 
@@ -340,6 +493,8 @@ def _down(args: argparse.Namespace) -> int:
     import os
     import signal
 
+    if args.connect:
+        return _down_over_the_bus(args)
     run_dir = find_run_dir(args.run_dir, args.cluster)
     pid = json.loads((run_dir / "launcher.json").read_text())["launcher_pid"]
     if not pid_alive(pid):
@@ -356,31 +511,57 @@ def _down(args: argparse.Namespace) -> int:
     return 0
 
 
+def _down_over_the_bus(args: argparse.Namespace) -> int:
+    """Stop a cluster from any host: the nodes no launcher runs (started by hand) get
+    ``shutdown``, then every launcher on the bus is asked at once to stop what it runs
+    (the ones that run routers last: the others' requests travel through them)."""
+    with _client(args) as client:
+        launchers = client.launchers(timeout=2.0)
+        launched = {n for st in launchers.values() for n in st.get("nodes", {})}
+        for node in sorted(set(client.status(timeout=1.0)) - launched):
+            client.query(node, "shutdown", timeout=1.0)
+        order = sorted(launchers, key=lambda lid: bool(launchers[lid].get("routers")))
+        pending = [
+            (lid, client.session.get(client.keys.launcher(lid, "down"), timeout=3.0))
+            for lid in order
+        ]  # every request is on its way before the first launcher stops its routers
+        stopping = [lid for lid, replies in pending if any(r.ok for r in replies)]
+    missing = sorted(set(launchers) - set(stopping))
+    if missing:
+        print(f"hera down: launchers {missing} did not answer", file=sys.stderr)
+        return 1
+    print(f"cluster {client.cluster}: {len(stopping)} launchers stopping ({', '.join(stopping)})")
+    return 0
+
+
 def _inject(args: argparse.Namespace) -> int:
-    run_dir = find_run_dir(args.run_dir, args.cluster)
     if args.fault in ("board", "clock", "partition", "loss", "delay", "reset", "heal"):
         from hera.campaign.manual import inject
 
+        run_dir = None if args.connect else find_run_dir(args.run_dir, args.cluster)
         peers = args.peers.split(",") if args.peers else None
-        reply = inject(
-            run_dir,
-            args.node,
-            args.fault,
-            args.measure,
-            args.board,
-            args.seconds,
-            args.param,
-            peers,
-            args.jitter,
-        )
+        with _client(args) as client:
+            reply = inject(
+                client,
+                run_dir,
+                args.node,
+                args.fault,
+                args.measure,
+                args.board,
+                args.seconds,
+                args.param,
+                peers,
+                args.jitter,
+            )
         print(json.dumps(reply))
         return 0 if reply.get("ok") else 1
     if args.fault in ("stop", "start"):
         verb, request = args.fault, {"measure": args.measure}
     else:
         verb, request = "inject", {"fault": args.fault, "measure": args.measure}
-    with ClusterClient.from_run_dir(run_dir) as client:
-        client.spec.node(args.node)  # an unknown node lists the known ones
+    with _client(args) as client:
+        if client.spec is not None:
+            client.spec.node(args.node)  # an unknown node lists the known ones
         replies = client.query(args.node, verb, request)
     if args.node not in replies:
         print(f"hera inject: node {args.node!r} did not answer", file=sys.stderr)
@@ -411,7 +592,10 @@ def _replay(args: argparse.Namespace) -> int:
         like = live_schedule(args.recordings, args.start_like)
         if not like:
             raise ValueError(f"no live estimates of node {args.start_like!r} in the recordings")
-    counts = replay(args.recordings, args.out, chosen, args.node, like)
+    from hera.progress import Progress
+
+    with Progress("replay") as progress:
+        counts = replay(args.recordings, args.out, chosen, args.node, like, progress)
     for name, n in counts.items():
         print(f"{name:<20} {n:>7} estimates -> {Path(args.out) / 'measures'}")
     return 0
@@ -426,7 +610,10 @@ def _eval(args: argparse.Namespace) -> int:
 
     options = EvalOptions(after=args.after, settle=args.settle)
     index = AppIndex()
-    results = evaluate(args.run_dir, options, index)
+    from hera.progress import Progress
+
+    with Progress("eval") as progress:
+        results = evaluate(args.run_dir, options, index, progress)
     if not results:
         raise ValueError(f"{args.run_dir}: no model outputs to score (no fusion model logged)")
     if args.json:

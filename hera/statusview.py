@@ -81,7 +81,8 @@ def sync_rows(status: Mapping[str, Mapping[str, Any]]) -> list[str]:
 
 
 def problem_rows(status: Mapping[str, Mapping[str, Any]]) -> list[str]:
-    """What needs attention: measures not running or restarted, rejected inputs."""
+    """What needs attention: measures not running or restarted, rejected inputs, sources
+    whose samples are all refused, refused args writes."""
     items = []
     for node in sorted(status):
         for name, m in sorted(status[node].get("measures", {}).items()):
@@ -92,6 +93,12 @@ def problem_rows(status: Mapping[str, Mapping[str, Any]]) -> list[str]:
         if rejected:
             kinds = ",".join(f"{k}={v}" for k, v in sorted(rejected.items()))
             items.append(f"{node} rejected {kinds}")
+        for source, r in sorted((status[node].get("refused_sources") or {}).items()):
+            items.append(f"{node} refuses every sample of {source} ({r['reason']} x{r['refused']})")
+        args_rejected = status[node].get("args_rejected") or {}
+        if args_rejected:
+            kinds = ",".join(f"{k}={v}" for k, v in sorted(args_rejected.items()))
+            items.append(f"{node} refused args {kinds}")
     return ["problems: " + "; ".join(items)] if items else []
 
 
@@ -105,9 +112,10 @@ def render_view(
     panels: Sequence[Panel] = (),
     width: int = 80,
     height: int = 24,
+    routers: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> str:
     """The compact view (see the module docstring), at most ``height`` lines of at most
-    ``width`` characters."""
+    ``width`` characters; ``routers``: the launcher's routers (name -> pid, state)."""
     launcher = launcher or {}
     names = sorted(set(status) | set(launcher))
     up = sum(1 for n in names if n in status)
@@ -121,7 +129,16 @@ def render_view(
         head += f", {uptime:.0f} s"
     if run_dir:
         head += f", run {run_dir}"
-    top = [head, *node_rows(status, launcher), *sync_rows(status), *problem_rows(status)]
+    top = [head, *node_rows(status, launcher)]
+    if routers:
+        top.append(
+            "routers: "
+            + ", ".join(
+                f"{n} {r.get('state', '?')} (pid {r.get('pid')})"
+                for n, r in sorted(routers.items())
+            )
+        )
+    top += [*sync_rows(status), *problem_rows(status)]
     body: list[str] = []
     for p in panels:
         body += ["", *render_panel(p).splitlines()]
@@ -172,6 +189,10 @@ def render_node(status: Mapping[str, Any]) -> str:
     )
     if status.get("last_rejection"):
         lines.append(f"last rejected: {status['last_rejection']}")
+    for source, r in sorted((status.get("refused_sources") or {}).items()):
+        lines.append(f"every sample of {source} refused: {r['reason']} x{r['refused']}")
+    if status.get("args_rejected"):
+        lines.append(f"args refused: {status['args_rejected']}")
     transit = status.get("transit_ms", {})
     if transit:
         lines.append(

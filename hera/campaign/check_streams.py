@@ -73,28 +73,43 @@ def check_gaps(h: History) -> Verdict:
 
 
 def check_sequences(h: History) -> Verdict:
-    rows, regress, dups = [], 0, 0
+    """Per stream, in arrival order: a (run, seq) seen before is a duplicate; a seq not
+    above the highest of its run, or a sample of an older run (incarnation) after a newer
+    one, is a regression. A new run may start its seqs again (the wire's contract: a
+    restarted process takes a new incarnation); how many streams did is reported."""
+    rows, regress, dups, restarted = [], 0, 0, 0
     for (name, node), s in sorted(h.streams.items()):
-        seen: set[int] = set()
-        top, r, d = 0, 0, 0
-        for q in s.seq.tolist():
-            if q in seen:
+        seen: set[tuple[int, int]] = set()
+        top: dict[int, int] = {}
+        latest, r, d = 0, 0, 0
+        for run, q in zip(s.run.tolist(), s.seq.tolist(), strict=True):
+            if (run, q) in seen:
                 d += 1
-            elif q <= top:
+            elif run < latest or q <= top.get(run, 0):
                 r += 1
-            seen.add(q)
-            top = max(top, q)
+            seen.add((run, q))
+            top[run] = max(top.get(run, 0), q)
+            latest = max(latest, run)
         regress += r
         dups += d
-        if r or d:
-            rows.append({"stream": f"{name}@{node}", "regressions": r, "duplicates": d})
+        restarted += latest > 0
+        if r or d or latest:
+            rows.append(
+                {
+                    "stream": f"{name}@{node}",
+                    "incarnations": latest + 1,
+                    "regressions": r,
+                    "duplicates": d,
+                }
+            )
     n = sum(len(s) for s in h.streams.values())
     if not n:
         return Verdict("sequences", False, "no sample was recorded")
     return Verdict(
         "sequences",
         regress == 0 and dups == 0,
-        f"{regress} seq regressions, {dups} duplicates in {n} samples of {len(h.streams)} streams",
+        f"{regress} seq regressions, {dups} duplicates in {n} samples of {len(h.streams)} "
+        f"streams ({restarted} of them from more than one incarnation)",
         rows,
     )
 

@@ -47,12 +47,14 @@ LAUNCHER_OUT = "launcher.out"
 
 @dataclass
 class Stream:
-    """The samples of one (name, node) as recorded: arrival (wall s), seq, measurement time
-    t (s, producer's clock) and values, in arrival order."""
+    """The samples of one (name, node) as recorded: arrival (wall s), run (the producer's
+    incarnation, numbered in the order first seen), seq, measurement time t (s, producer's
+    clock) and values, in arrival order."""
 
     name: str
     node: str
     arrival: np.ndarray
+    run: np.ndarray
     seq: np.ndarray
     t: np.ndarray
     values: np.ndarray
@@ -228,14 +230,16 @@ def read_stream(path: Path, name: str, node: str) -> Stream:
             row = [float(x) for x in parts]
         except ValueError:
             continue
-        if len(row) < 3:
+        if len(row) < 4:
             continue
         if width is None:
             width = len(row)
         if len(row) == width:
             rows.append(row)
-    a = np.array(rows, dtype=float).reshape(len(rows), width or 3)
-    return Stream(name, node, a[:, 0], a[:, 1].astype(np.int64), a[:, 2], a[:, 3:])
+    a = np.array(rows, dtype=float).reshape(len(rows), width or 4)
+    return Stream(
+        name, node, a[:, 0], a[:, 1].astype(np.int64), a[:, 2].astype(np.int64), a[:, 3], a[:, 4:]
+    )
 
 
 def read_streams(folder: Path) -> dict[tuple[str, str], Stream]:

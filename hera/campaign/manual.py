@@ -56,7 +56,8 @@ def campaign_dir(run_dir: Path) -> Path | None:
 
 
 def inject(
-    run_dir: Path,
+    client: ClusterClient,
+    run_dir: Path | None,
     node: str,
     fault: str,
     value: str | None,
@@ -66,29 +67,32 @@ def inject(
     peers: list[str] | None = None,
     jitter_ms: float = 0.0,
 ) -> dict[str, Any]:
-    """Do one fault by hand; the reply to print. ValueError (a sentence) on a bad request,
-    LookupError when the node does not answer."""
-    folder = campaign_dir(run_dir)
-    with ClusterClient.from_run_dir(run_dir) as client:
+    """Do one fault by hand through ``client`` (``run_dir``: the cluster's run directory on
+    this host, None when reached with ``--connect``: then only board and clock faults);
+    the reply to print. ValueError (a sentence) on a bad request, LookupError when the
+    node does not answer."""
+    folder = campaign_dir(run_dir) if run_dir is not None else None
+    if client.spec is not None and node != "*":
+        client.spec.node(node)  # an unknown node lists the known ones
+    if fault in NETWORK:
+        if client.spec is None:
+            raise ValueError("network faults need the cluster's run directory on this host")
         names = [n.name for n in client.spec.nodes]
-        if node != "*":
-            client.spec.node(node)  # an unknown node lists the known ones
-        if fault in NETWORK:
-            reply = _network(folder, names, node, fault, value, peers, jitter_ms)
-        elif fault == "board":
-            if not board or value is None:
-                raise ValueError(
-                    "board faults need the fault and --board ID, e.g. "
-                    "'hera inject n1 board stuck --board n1/nav'"
-                )
-            req: dict[str, Any] = {"board": board, "fault": value, **_params(params)}
-            if seconds is not None and value != "clear":
-                req["duration"] = seconds
-            reply = _ask(client, node, "board", req)
-        elif fault == "clock":
-            reply = _ask(client, node, "clock", {"skew_s": _number(value, "the clock skew (s)")})
-        else:
-            raise ValueError(f"unknown fault {fault!r}: use {', '.join(FAULTS)}")
+        reply = _network(folder, names, node, fault, value, peers, jitter_ms)
+    elif fault == "board":
+        if not board or value is None:
+            raise ValueError(
+                "board faults need the fault and --board ID, e.g. "
+                "'hera inject n1 board stuck --board n1/nav'"
+            )
+        req: dict[str, Any] = {"board": board, "fault": value, **_params(params)}
+        if seconds is not None and value != "clear":
+            req["duration"] = seconds
+        reply = _ask(client, node, "board", req)
+    elif fault == "clock":
+        reply = _ask(client, node, "clock", {"skew_s": _number(value, "the clock skew (s)")})
+    else:
+        raise ValueError(f"unknown fault {fault!r}: use {', '.join(FAULTS)}")
     if folder is not None:
         journal.append(
             folder,

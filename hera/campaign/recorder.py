@@ -6,8 +6,10 @@ Unlike the logging node's CSVs (which hold only what its store accepted, and not
 it is down), this is the raw history the checkers judge: a duplicate or a seq going back is
 recorded as it came. Files under ``<campaign dir>/observed/``:
 
-- ``<name>@<node>.csv``: ``arrival,seq,t,v1,v2,...`` (arrival: this process's wall clock;
-  t: the sample's measurement time, on its producer's clock);
+- ``<name>@<node>.csv``: ``arrival,run,seq,t,v1,v2,...`` (arrival: this process's wall
+  clock; run: the producer's incarnation, numbered 0, 1, ... in the order this recorder
+  first saw each (a restarted process takes a new incarnation and may start its seqs
+  again, :mod:`hera.wire`); t: the sample's measurement time, on its producer's clock);
 - ``alive.csv``: ``t,node,up|down`` (liveliness tokens of the nodes, as seen here);
 - ``args.jsonl``: ``{"t", "key", "ts", "origin", "value"}`` for every args write;
 - ``rejected.txt``: samples that did not decode (each with the reason).
@@ -47,6 +49,7 @@ class Recorder:
         self.dir.mkdir(parents=True, exist_ok=True)
         self._lock = threading.Lock()
         self._files: dict[tuple[str, str], IO[str]] = {}
+        self._runs: dict[tuple[str, str], dict[int, int]] = {}  # incarnation -> its number
         self._alive = open(self.dir / "alive.csv", "a")  # noqa: SIM115 - closed in close()
         self._args = open(self.dir / "args.jsonl", "a")  # noqa: SIM115
         self._rejected = open(self.dir / "rejected.txt", "a")  # noqa: SIM115
@@ -74,10 +77,12 @@ class Recorder:
                 self.rejected += 1
                 self._rejected.write(f"{arrival:.6f} {key} {e}\n")
             return
-        row = f"{arrival:.6f},{msg.seq},{msg.t!r},{','.join(map(repr, msg.values))}\n"
         with self._lock:
             if self._closed:
                 return
+            runs = self._runs.setdefault((name, node), {})
+            run = runs.setdefault(msg.inc, len(runs))
+            row = f"{arrival:.6f},{run},{msg.seq},{msg.t!r},{','.join(map(repr, msg.values))}\n"
             f = self._files.get((name, node))
             if f is None:
                 f = self._files[(name, node)] = open(stream_file(self.dir.parent, name, node), "a")  # noqa: SIM115

@@ -110,6 +110,29 @@ def spec_problems(campaign: Campaign, spec: ClusterSpec) -> list[str]:
         for b in campaign.nemesis.get("boards") or []:
             if b.split("/", 1)[0] not in names:
                 out.append(f"{where}: boards: board {b!r} is not on a node of the spec")
+    if campaign.network:
+        out.extend(network_problems(campaign, spec))
+    return out
+
+
+def network_problems(campaign: Campaign, spec: ClusterSpec) -> list[str]:
+    """Why the link proxy cannot stand between the spec's nodes: it needs the plain full
+    mesh of peers on one host (no routers, no client nodes, no endpoints of their own) and
+    links without TLS (a proxied TLS link was never tried)."""
+    where = f"{campaign.source}: network faults (partition, loss, delay, reset)"
+    out = []
+    if spec.routers:
+        out.append(f"{where} need a full mesh of peers; the spec has routers")
+    for n in spec.nodes:
+        if n.mode != "peer" or n.listen is not None or n.connect is not None:
+            out.append(
+                f"{where} need every node a peer on its own port; node {n.name!r} sets "
+                "mode, listen or connect"
+            )
+    if spec.spans_hosts():
+        out.append(f"{where} need every node on one host; the spec spans several")
+    if spec.tls:
+        out.append(f"{where} are not supported with [security] tls = true (untried)")
     return out
 
 
@@ -395,6 +418,7 @@ class CampaignRun:
                     preexec_fn=_die_with_parent if os.name == "posix" else None,
                 )
             self._wait_listening()
+            self._take_credentials(run_dir)
         self._mark("started")
         self.client = ClusterClient(self.spec)
         self.recorder = Recorder(self.client.session, self.client.keys, f)
@@ -406,6 +430,16 @@ class CampaignRun:
             self.proxy,
             [f / history.AUDIT / name for name in self.fire_logs],
         )
+
+    def _take_credentials(self, run_dir: Path) -> None:
+        """Take the cluster's credentials (the secret ``hera up`` made for this run) from
+        the spec it wrote, so the campaign's own session is let in like an operator's."""
+        if not (self.spec.auth and not self.spec.tls and not self.spec.certs):
+            return
+        if not (run_dir / "cluster.json").exists():
+            raise RuntimeError(f"hera up wrote no {run_dir / 'cluster.json'}: see its output")
+        secret = load_spec(run_dir / "cluster.json").secret
+        self.spec = self.spec.with_security(secret=secret)
 
     def _wait_listening(self, timeout: float = 30.0) -> None:
         """Until every node's port accepts connections (or the launcher died)."""

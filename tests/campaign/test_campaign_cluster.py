@@ -3,8 +3,10 @@ sync setting the overlap checker must catch.
 
 Each runs ``hera campaign`` as a user would (a process, real nodes on loopback, the link
 proxy for network faults) and checks its verdicts, its report and that nothing is left
-running. The full campaigns (minutes each) are marked slow; README "Fault campaigns" has
-their figures and commands.
+running. CI runs the short thesis-ch5 and the broken sync setting; the short partitions
+and nemesis (about 40 s each) and the full campaigns (minutes each) are marked slow
+(``pytest -m slow tests/campaign``); README "Fault campaigns" has their figures and
+commands.
 """
 
 from __future__ import annotations
@@ -78,6 +80,7 @@ def test_thesis_ch5_short(tmp_path):
     assert_complete_report(folder)
 
 
+@pytest.mark.slow  # CI budget: the link proxy is in tests/campaign/test_inject_by_hand.py
 def test_partitions_short(tmp_path):
     code, folder, out = run_campaign(tmp_path, "train", "partitions", "--short", "--seed", "1")
     v = verdicts(folder)
@@ -90,6 +93,7 @@ def test_partitions_short(tmp_path):
     assert_complete_report(folder)
 
 
+@pytest.mark.slow  # CI budget: the link proxy is in tests/campaign/test_inject_by_hand.py
 def test_nemesis_short(tmp_path):
     code, folder, out = run_campaign(tmp_path, "train", "nemesis", "--short", "--seed", "3")
     v = verdicts(folder)

@@ -145,6 +145,11 @@ def _dup(s):
     s.stream("sonar", "b", [119.0], [[1.0, 0.0, -1.5]], seqs=[1])
 
 
+def _old_incarnation(s):
+    # a sample of b's first incarnation after its second one published (seqs of its own)
+    s.stream("sonar", "b", [119.0, 119.1, 119.2], [[1.0, 0.0, -1.5]] * 3, [1, 2, 900], [1, 1, 0])
+
+
 def _args_missing(s):
     del s.final["args"]["c"]["calib/a/nav"]
 
@@ -222,6 +227,7 @@ PLANTED = [
     ("gaps", {"model_times": _gap}),
     ("sequences", {"then": [_seq_back]}),
     ("sequences", {"then": [_dup]}),
+    ("sequences", {"then": [_old_incarnation]}),
     ("args", {"then": [_args_missing]}),
     ("args", {"then": [_args_old]}),
     ("args", {"then": [_args_redone]}),
@@ -243,6 +249,18 @@ PLANTED = [
 def test_each_checker_fails_on_its_planted_fault(tmp_path, checker, edits):
     v = verdicts(clean(tmp_path, **edits))
     assert not v[checker].passed, v[checker].summary
+
+
+def test_a_new_incarnation_may_start_its_seqs_again(tmp_path):
+    """A restarted process takes a new incarnation and may number from 1 again (hera.wire);
+    within it the seqs must still rise."""
+
+    def restarted(s):
+        s.stream("sonar", "b", [119.0, 119.1], [[1.0, 0.0, -1.5]] * 2, [1, 2], [1, 1])
+
+    v = verdicts(clean(tmp_path, then=[restarted]))["sequences"]
+    assert v.passed, v.summary
+    assert "1 of them from more than one incarnation" in v.summary
 
 
 def test_an_escalation_after_too_many_exits_is_what_a_supervisor_must_do(tmp_path):

@@ -12,6 +12,7 @@ from hera.campaign.schema import (
     campaigns,
     load_campaign,
     parse_campaign,
+    resolve_campaign,
 )
 from hera.cli import main
 from hera.examples import resolve_spec
@@ -77,6 +78,19 @@ def test_a_campaign_that_does_not_fit_the_spec_is_refused_before_anything_starts
     assert any("node 'nav_1' has no measure 'sonar'" in p for p in problems)
     assert any("no sync group 'nope'" in p for p in problems)
     assert any("target 'nav_9' is neither a node" in p for p in problems)
+
+
+def test_network_faults_are_refused_on_a_spec_the_link_proxy_cannot_stand_in(tmp_path):
+    """The proxy needs the plain mesh of peers on one host without TLS: routers, a client
+    node or TLS are refused before anything starts, each in a sentence."""
+    c = load_campaign(resolve_campaign("partitions"))
+    assert spec_problems(c, TRAIN) == []
+    routed = load_spec(resolve_spec("two_hosts"))
+    assert any("the spec has routers" in p for p in spec_problems(c, routed))
+    tls = TRAIN.with_security(tls=True)
+    assert any("tls = true" in p for p in spec_problems(c, tls))
+    crash_only = load_campaign(resolve_campaign("thesis-ch5"))
+    assert not any("network faults" in p for p in spec_problems(crash_only, tls))
 
 
 def test_the_command_line_says_what_is_wrong_with_exit_code_2(tmp_path, capsys):

@@ -80,14 +80,16 @@ class Synth:
         self.leftovers: list[dict[str, Any]] = []
 
     # -- recordings ---------------------------------------------------------------------
-    def stream(self, name: str, node: str, times, values=None, seqs=None) -> None:
-        """Samples of (name, node) arriving at ``T0 + times`` (measurement time = arrival)."""
+    def stream(self, name: str, node: str, times, values=None, seqs=None, runs=None) -> None:
+        """Samples of (name, node) arriving at ``T0 + times`` (measurement time = arrival),
+        of incarnation ``runs`` (numbers in the order first seen; default all 0)."""
         times = list(times)
         seqs = list(seqs) if seqs is not None else list(range(1, len(times) + 1))
+        runs = list(runs) if runs is not None else [0] * len(times)
         rows = []
         for i, t in enumerate(times):
             v = values(T0 + t) if callable(values) else (values[i] if values else [0.0])
-            rows.append(f"{T0 + t:.6f},{seqs[i]},{T0 + t!r},{','.join(map(repr, v))}")
+            rows.append(f"{T0 + t:.6f},{runs[i]},{seqs[i]},{T0 + t!r},{','.join(map(repr, v))}")
         path = self.dir / "observed" / f"{name}@{node}.csv"
         with open(path, "a") as f:
             f.write("\n".join(rows) + "\n")
