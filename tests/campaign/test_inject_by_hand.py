@@ -161,3 +161,33 @@ def test_faults_by_hand_on_a_holding_campaign(tmp_path):
 def test_network_faults_need_a_cluster_started_by_a_campaign():
     with pytest.raises(ValueError, match="started by 'hera campaign'"):
         _network(None, ["a", "b"], "a", "partition", None, None, 0.0)
+
+
+class _Reached:
+    """A tool client reached with --connect (no spec, no run directory): it records the
+    queries it is asked to send."""
+
+    spec = None
+
+    def __init__(self) -> None:
+        self.asked: list[tuple] = []
+
+    def query(self, node, verb, request, timeout=2.0):
+        self.asked.append((node, verb, request))
+        return {node: {"ok": True, "verb": verb}}
+
+
+def test_board_and_clock_faults_work_through_connect_and_network_faults_say_why_not():
+    from hera.campaign.manual import inject
+
+    client = _Reached()
+    reply = inject(client, None, "n2", "board", "stuck", board="n2/sonar", seconds=2.0)
+    assert reply["ok"] and client.asked[-1] == (
+        "n2",
+        "board",
+        {"board": "n2/sonar", "fault": "stuck", "duration": 2.0},
+    )
+    inject(client, None, "n1", "clock", "0.25")
+    assert client.asked[-1] == ("n1", "clock", {"skew_s": 0.25})
+    with pytest.raises(ValueError, match="network faults need the cluster's run directory"):
+        inject(client, None, "n1", "partition", None)
