@@ -83,3 +83,20 @@ def test_args_written_by_a_skewed_node_carry_its_clock(skew):
     store.put("calib/x", 1)
     stamp = store._entries["calib/x"][0]
     assert stamp / 1e9 == pytest.approx(time.time() - 10.0, abs=0.5)
+
+
+def test_a_node_skewed_past_the_bound_has_its_args_refused_by_the_others(skew):
+    """Args stamps are hybrid logical clocks on the node's clock: a writer 2 s ahead is
+    further ahead than a receiver on the true clock takes (1 s), and is refused there;
+    0.3 s ahead (the nemesis's range) is taken."""
+    far, near = ArgsStore("n1"), ArgsStore("n3")  # two writers: a clock never runs back
+    receiver = ArgsStore("n2", max_skew_ns=1_000_000_000)
+    skew(2.0)
+    far.put("calib/far", 1)
+    skew(0.3)
+    near.put("calib/near", 2)
+    skew(0.0)
+    receiver._merge("calib/far", *far._entries["calib/far"])
+    receiver._merge("calib/near", *near._entries["calib/near"])
+    assert receiver.get("calib/near") == 2 and receiver.get("calib/far") is None
+    assert receiver.rejected == {"future": 1}
