@@ -21,7 +21,10 @@ HELP_EXAMPLES = {
     "router": "hera router deploy/two_hosts.toml --name r_a",
     "status": "hera status nav_1",
     "down": "hera down --cluster train",
-    "inject": "hera inject n3 crash obs1",
+    "inject": "hera inject n3 crash obs1\n  hera inject sonar_1 board stuck --board sonar_1/sonar"
+    "\n  hera inject nav_1 partition        (a cluster started by hera campaign)",
+    "campaign": "hera campaign train thesis-ch5\n  hera campaign train nemesis --seed 7"
+    "\n  hera campaign train partitions --short",
     "measures": "hera measures track_radius",
     "apps": "hera apps",
     "examples": "hera examples",
@@ -132,8 +135,22 @@ def _parser() -> argparse.ArgumentParser:
     dn = _command(sub, "down", "stop a running cluster", HELP_EXAMPLES["down"])
     inj = _command(sub, "inject", "inject a fault into a running cluster", HELP_EXAMPLES["inject"])
     inj.add_argument("node", help="target node")
-    inj.add_argument("fault", help="crash | hang | crash_node | stop | start")
-    inj.add_argument("measure", nargs="?", help="target measure (crash, hang, stop, start)")
+    inj.add_argument(
+        "fault",
+        help="crash | hang | crash_node | stop | start | board | clock | partition | loss | "
+        "delay | reset | heal",
+    )
+    inj.add_argument(
+        "measure",
+        nargs="?",
+        help="the measure (crash, hang, stop, start), the board fault (board: stuck, dropout, "
+        "spikes, bias, disconnect, clear), or the value (clock: s, loss: share, delay: ms)",
+    )
+    inj.add_argument("--board", help="board: the board id, <node>/<board>")
+    inj.add_argument("--for", dest="seconds", type=float, help="board: how long it lasts, s")
+    inj.add_argument("--param", action="append", help="board: a fault parameter KEY=VALUE")
+    inj.add_argument("--peers", help="network faults: only the links to these nodes (a,b)")
+    inj.add_argument("--jitter", type=float, default=0.0, help="delay: +/- this much, ms")
     for s in (st, dn, inj):
         s.add_argument("--run-dir", help="run directory of the cluster (on this host)")
         s.add_argument("--cluster", help="name of the cluster, if several run")
@@ -209,6 +226,23 @@ def _parser() -> argparse.ArgumentParser:
     ev.add_argument("--node", help="node whose models are plotted (default: the first)")
     ev.add_argument("--json", action="store_true", help="print JSON")
 
+    cp = _command(
+        sub,
+        "campaign",
+        "run a fault campaign on a cluster, check what happened, write a report",
+        HELP_EXAMPLES["campaign"],
+    )
+    cp.add_argument("spec", help="cluster spec (TOML file, or an example's name)")
+    cp.add_argument(
+        "campaign", help="campaign file, or a shipped one: thesis-ch5, partitions, nemesis, manual"
+    )
+    cp.add_argument("--run-dir", help="campaign directory (default: a new hera-run/campaign-*)")
+    cp.add_argument("--seed", type=int, help="seed of the random choices (default: a new one)")
+    cp.add_argument("--short", action="store_true", help="the campaign's short version")
+    cp.add_argument(
+        "--attach", action="store_true", help="use the running cluster of SPEC (no network faults)"
+    )
+
     tools.add_parsers(sub, _command)
 
     b = _command(sub, "bench", "run a benchmark: " + ", ".join(BENCHES), HELP_EXAMPLES["bench"])
@@ -222,14 +256,14 @@ def main(argv: list[str] | None = None) -> int:
     command line, spec or input, with one line per problem on stderr)."""
     args = _parser().parse_args(argv)
     try:
-        return _dispatch(args)
+        return _dispatch(args, argv)
     except (LookupError, ValueError, OSError, ImportError) as e:
         for line in str(e).strip().splitlines() or [type(e).__name__]:
             print(f"hera {args.cmd}: {line}", file=sys.stderr)
         return 2
 
 
-def _dispatch(args: argparse.Namespace) -> int:
+def _dispatch(args: argparse.Namespace, argv: list[str] | None = None) -> int:
     if args.cmd == "node":
         from hera.node import run_node
         from hera.preflight import check_spec
@@ -301,6 +335,14 @@ def _dispatch(args: argparse.Namespace) -> int:
         return _replay(args)
     if args.cmd == "eval":
         return _eval(args)
+    if args.cmd == "campaign":
+        from hera.campaign.runner import CampaignRun
+
+        command = " ".join(["hera", *(argv if argv is not None else sys.argv[1:])])
+        run = CampaignRun(
+            args.spec, args.campaign, args.run_dir, args.seed, args.short, args.attach
+        )
+        return run.run(command)
     if args.cmd == "bench":
         module = importlib.import_module(f"hera.bench.{args.name}")
         return int(module.main(args.rest) or 0)
@@ -499,6 +541,26 @@ def _down_over_the_bus(args: argparse.Namespace) -> int:
 
 
 def _inject(args: argparse.Namespace) -> int:
+    if args.fault in ("board", "clock", "partition", "loss", "delay", "reset", "heal"):
+        from hera.campaign.manual import inject
+
+        run_dir = None if args.connect else find_run_dir(args.run_dir, args.cluster)
+        peers = args.peers.split(",") if args.peers else None
+        with _client(args) as client:
+            reply = inject(
+                client,
+                run_dir,
+                args.node,
+                args.fault,
+                args.measure,
+                args.board,
+                args.seconds,
+                args.param,
+                peers,
+                args.jitter,
+            )
+        print(json.dumps(reply))
+        return 0 if reply.get("ok") else 1
     if args.fault in ("stop", "start"):
         verb, request = args.fault, {"measure": args.measure}
     else:

@@ -15,6 +15,7 @@ from contextlib import contextmanager
 from dataclasses import replace
 from typing import Any
 
+from hera import wallclock
 from hera.nodes import geometry as gm
 from hera.nodes.driver import ImuSample
 from hera.nodes.fault_model import FaultState
@@ -27,8 +28,10 @@ _AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
 
 
 class SimNavBoard:
-    """Simulated Pmod NAV. ``clock`` gives the epoch time of each reading (default
-    ``time.time``); readings are a pure function of (seed, scenario, reading times)."""
+    """Simulated Pmod NAV. ``clock`` gives the true epoch time of each reading (default
+    ``time.time``); readings are a pure function of (seed, scenario, reading times).
+    ``read_imu`` stamps its sample with the node's wall clock (:mod:`hera.wallclock`: the
+    reading time plus any injected clock skew)."""
 
     kind = "pmod_nav"
     sensors = {"acc": 3, "gyro": 3, "mag": 3, "baro": 1}
@@ -140,7 +143,8 @@ class SimNavBoard:
         acc = self._read("acc", t, m, held)
         gyro = self._read("gyro", t, m, held)
         field = self._read("mag", t, m, held) if mag else None
-        return ImuSample(t, acc, gyro, field)  # type: ignore[arg-type]
+        # the world is sensed at the true time; the reading is stamped with the node's clock
+        return ImuSample(t + wallclock.offset(), acc, gyro, field)  # type: ignore[arg-type]
 
     # -- models ------------------------------------------------------------------------------
     def _read(self, sensor: str, t: float, m: Motion, held: bool) -> tuple[float, ...]:
