@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from .backend import active_kernels
+from .consider import consider_indices, restore_considered
 from .gating import gate_threshold
 from .numerics import CovarianceError, NonFiniteInputError, numerical_jacobian
 from .observations import Block, Observations
@@ -481,13 +482,18 @@ class LinearisedFilter:
         gate: float | None = ...,  # type: ignore[assignment]
         *,
         method: str = "auto",
+        consider: Sequence[int] | np.ndarray | None = None,
     ) -> UpdateResult:
         """Fuse the present observation blocks (thesis listing 4.1). No blocks: no-op.
 
         ``gate``: chi-square probability per block (e.g. 0.999) or None; defaults to the
-        filter's ``gate``. Returns which blocks were accepted/rejected with their NIS. On any
-        exception the state is unchanged.
+        filter's ``gate``. ``consider``: states (indices or a boolean mask) this update must
+        not change, Schmidt "consider" states (:mod:`.consider`): their gain rows are zero,
+        the covariance stays consistent (Joseph form). Returns which blocks were
+        accepted/rejected with their NIS. On any exception the state is unchanged.
         """
+        if consider is not None:
+            return self._update_considering(obs, gate, method, consider)
         blocks = obs.blocks if type(obs) is Observations else as_blocks(obs)
         if gate is ...:
             gate = self.gate
@@ -555,6 +561,24 @@ class LinearisedFilter:
             out = linearised_update_numpy(self.x, self.P, blocks, gate, self.joseph, method)
         self.x, self.P, res = out
         return res
+
+    def _update_considering(
+        self,
+        obs: Observations | Sequence[Block] | Block | None,
+        gate: float | None,
+        method: str,
+        consider: Sequence[int] | np.ndarray,
+    ) -> UpdateResult:
+        """The Schmidt update: the joint update, then the considered states' x and P block
+        restored (equal to zeroing their gain rows, see :mod:`.consider`)."""
+        if method == "sequential":
+            raise ValueError("consider states need the joint update, not method='sequential'")
+        idx = consider_indices(consider, self.n)
+        x0, P0 = self.x, self.P
+        result = self.update(obs, gate, method="joint" if method == "auto" else method)
+        if len(idx) and self.x is not x0:
+            self.x, self.P = restore_considered(x0, P0, self.x, self.P, idx)
+        return result
 
     def _commit_predict(self, x: np.ndarray, P: np.ndarray, what: str) -> None:
         """Store a predicted state after a finiteness check (state unchanged on error)."""
