@@ -22,7 +22,7 @@ from hera.nodes.air import Air, Ping
 from hera.nodes.driver import RangeSample
 from hera.nodes.fault_model import FaultState
 from hera.nodes.noise import KeyedRandom
-from hera.nodes.sonar_model import INCH, SonarModel, nearest_surface, to_inches
+from hera.nodes.sonar_model import INCH, SonarModel, echo_range, nearest_surface, to_inches
 from hera.nodes.world import Motion, Scenario, SonarMount, State, Target, state_at, state_of
 
 
@@ -129,7 +129,8 @@ class SimMaxSonar:
             self._log_firing(mono0, mono1)
             m = self._motion(t)
             true_m = nearest_surface(self.mount, self.half_angle, m, self.target)
-            inches = to_inches(true_m, self.model, rng)
+            heard = echo_range(true_m, self._clutter, self.model, rng)
+            inches = to_inches(heard, self.model, rng)
             others = self.air.overlapping(ping) if self.air is not None else []
             if others:
                 first = min(others, key=lambda p: p.start)
@@ -140,6 +141,9 @@ class SimMaxSonar:
             value = self.faults.after_read("range", (float(inches),), rng)[0]
             inches = max(0, round(value))
             return RangeSample(t, inches, bool(others))
+
+    def _clutter(self, u: float) -> float | None:
+        return self.scenario.clutter_range(self.mount, self.half_angle, u)
 
     def _log_firing(self, start: float, end: float) -> None:
         if self.fire_log is None:
