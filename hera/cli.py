@@ -24,7 +24,8 @@ HELP_EXAMPLES = {
     "measures": "hera measures track_radius",
     "apps": "hera apps",
     "examples": "hera examples",
-    "replay": "hera replay hera-run/train --out replayed --models e7,e8",
+    "replay": "hera replay hera-run/train --out replayed --models e7,e8 "
+    "--set track_radius.radius=0.57",
     "eval": "hera eval hera-run/train",
     "bench": "hera bench kalman --quick",
     "start": "start with:\n  hera up train            a cluster, its live view\n"
@@ -119,6 +120,15 @@ def _parser() -> argparse.ArgumentParser:
         "--spec", help="spec giving the models' settings (default: the recordings' cluster.json)"
     )
     rp.add_argument("--node", default="replay", help="node name of the outputs")
+    rp.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="MODEL.SETTING=VALUE",
+        help="override a model setting (e.g. track_radius.radius=0.57) or the world "
+        "(world.KEY=VALUE); repeatable",
+    )
     rp.add_argument(
         "--start-like",
         metavar="NODE",
@@ -334,17 +344,33 @@ def _inject(args: argparse.Namespace) -> int:
 def _replay(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from hera.replay import model_args_from_spec, pick_models, replay
+    from hera.plugins import installed_apps
+    from hera.replay import (
+        apply_overrides,
+        model_args_from_spec,
+        pick_models,
+        replay,
+        with_producers,
+    )
 
-    if args.spec:
-        models = model_args_from_spec(_load(args.spec))
-    else:
-        spec_path = Path(args.recordings) / "cluster.json"
-        models = model_args_from_spec(_load(str(spec_path))) if spec_path.exists() else {}
+    spec_path = Path(args.recordings) / "cluster.json"
+    recorded = _load(str(spec_path)) if spec_path.exists() else None
+    spec = _load(args.spec) if args.spec else recorded
+    models = model_args_from_spec(spec) if spec is not None else {}
     wanted = args.models.split(",") if args.models else None
-    chosen = pick_models(models, wanted)
+    chosen = with_producers(pick_models(models, wanted), models)
     if not chosen:
         raise ValueError("no models to replay: give --models or --spec (or a run dir)")
+    world = None
+    if args.overrides:
+
+        def check_world(w):
+            return [p for app in installed_apps() for p in app.check_world(w)]
+
+        base = recorded.world if recorded is not None else {}
+        chosen, world = apply_overrides(chosen, base, args.overrides, check_world)
+        if not any(o.partition("=")[0].startswith("world.") for o in args.overrides):
+            world = None
     like = None
     if args.start_like:
         from hera.replay import live_schedule
@@ -352,7 +378,7 @@ def _replay(args: argparse.Namespace) -> int:
         like = live_schedule(args.recordings, args.start_like)
         if not like:
             raise ValueError(f"no live estimates of node {args.start_like!r} in the recordings")
-    counts = replay(args.recordings, args.out, chosen, args.node, like)
+    counts = replay(args.recordings, args.out, chosen, args.node, like, world)
     for name, n in counts.items():
         print(f"{name:<20} {n:>7} estimates -> {Path(args.out) / 'measures'}")
     return 0
