@@ -8,7 +8,14 @@ Scores (``hera eval``), with times counted from a model's first estimate:
   train in the sonars' beams (what the ladder of thesis fig. 6.5 compares);
 - ``pos_rmse_cm``: position RMSE after ``settle`` s; ``radius_rms_cm``: radius RMS error
   after ``settle`` s;
-- ``converge_s``: the time after which the angular-speed error stays within 2 %.
+- ``converge_s``: the time after which the angular-speed error stays within 2 %;
+- ``omega_low_pct``: the lowest angular-speed estimate after ``after`` s (for a model of
+  theta, ``after`` s past its lock), in % of the truth: an echo that knocks omega down
+  shows here;
+- ``lock_laps``: laps until theta stays within 30 deg of the truth (on its branch) for a lap;
+  ``wrong_laps``: the longest stay on a wrong branch (theta error over 45 deg) after that;
+- ``radius_std_mm``: the radius's standard deviation over the second half of the run;
+  ``radius_off_mm``: how far it strays outside the rails' range over that half (0: never).
 """
 
 from __future__ import annotations
@@ -50,26 +57,42 @@ RUNG_OF = {
 }
 
 
+RAIL_IN, RAIL_OUT = "inner rail [m]", "outer rail [m]"
+LOCK_DEG, WRONG_DEG = 30.0, 45.0
+"""A model is locked once its theta error stays under LOCK_DEG for a lap; on a wrong branch
+while the error is over WRONG_DEG."""
+
+
 def train_truth(world: Mapping[str, Any]) -> Truth:
     """The true x, y (m), theta (rad), omega (rad/s) and radius (m) of a target moving
-    around ``world["center"]``, at any epoch time."""
+    around ``world["center"]``, at any epoch time; for a train (a scenario with
+    ``polar(tau)``), theta, omega and radius are its polar ones (what a lap count measures:
+    the heading's rate differs on rails that are not round) and the rails' radii."""
     from hera.nodes.world import epoch_of, make_scenario, state_at
 
     scenario, epoch = make_scenario(world), epoch_of(world)
     cx, cy = (float(c) for c in world.get("center", (0.0, 0.0)))
+    polar = getattr(scenario, "polar", None)
+    rails = scenario.rails() if hasattr(scenario, "rails") else None
 
     def at(t: float) -> dict[str, float]:
         s = state_at(scenario, epoch, t)
         dx, dy = s.position[0] - cx, s.position[1] - cy
-        return {
+        out = {
             X: s.position[0],
             Y: s.position[1],
             THETA: math.atan2(dy, dx),
             OMEGA: s.angular_rate[2],
             RADIUS: math.hypot(dx, dy),
         }
+        if polar is not None:
+            out[OMEGA] = polar(t - epoch)[1]
+        if rails is not None:
+            out[RAIL_IN], out[RAIL_OUT] = rails
+        return out
 
-    return FunctionTruth((X, Y, THETA, OMEGA, RADIUS), at)
+    columns = (X, Y, THETA, OMEGA, RADIUS) + ((RAIL_IN, RAIL_OUT) if rails else ())
+    return FunctionTruth(columns, at)
 
 
 def _rms(x: np.ndarray) -> float | None:
@@ -78,7 +101,51 @@ def _rms(x: np.ndarray) -> float | None:
 
 def _truth_columns(series: Series, truth: Truth, *cols: str) -> list[np.ndarray]:
     rows = [truth.at(float(t)) for t in series.t]
-    return [np.array([r[c] for r in rows]) for c in cols]
+    return [np.array([r.get(c, np.nan) for r in rows]) for c in cols]
+
+
+def lock_time(t: np.ndarray, ok: np.ndarray, lap: float) -> float | None:
+    """The first time from which ``ok`` holds for a whole ``lap`` (s), or to the end of the
+    series when less than a lap is left; None if never."""
+    bad = t[~ok]
+    for i in np.flatnonzero(ok):
+        k = np.searchsorted(bad, t[i])
+        if k == len(bad) or bad[k] - t[i] >= lap:
+            return float(t[i])
+    return None
+
+
+def longest_span(t: np.ndarray, flag: np.ndarray) -> float:
+    """The longest time (s) ``flag`` holds without a break (from its first to one sample
+    past its last true estimate of each run), 0 if never."""
+    best, start = 0.0, None
+    for i, f in enumerate(flag):
+        if f and start is None:
+            start = t[i]
+        if start is not None and (not f or i == len(flag) - 1):
+            end = t[i] if not f else t[i]
+            best = max(best, float(end - start))
+            start = None
+    return best
+
+
+def branch_scores(
+    t: np.ndarray, theta: np.ndarray, theta_true: np.ndarray, omega_true: float
+) -> dict[str, float | None]:
+    """``lock_laps``: laps (from the first estimate) until the theta error stays within
+    LOCK_DEG for a lap; ``wrong_laps``: the longest stay after that lock with the error over
+    WRONG_DEG (a wrong branch), in laps; ``lock_t``: the lock's time (None: never)."""
+    lap = 2 * math.pi / abs(omega_true)
+    err = np.degrees(np.abs(np.angle(np.exp(1j * (theta - theta_true)))))
+    locked = lock_time(t, err < LOCK_DEG, lap)
+    if locked is None:
+        return {"lock_laps": None, "wrong_laps": None, "lock_t": None}
+    after = t >= locked
+    return {
+        "lock_laps": (locked - t[0]) / lap,
+        "wrong_laps": longest_span(t[after], err[after] > WRONG_DEG) / lap,
+        "lock_t": locked,
+    }
 
 
 class TrainApp(Application):
@@ -100,8 +167,13 @@ class TrainApp(Application):
         Metric("omega_max_pct", "omega max", "%"),
         Metric("omega_settled_rms_pct", "settled RMS", "%"),
         Metric("converge_s", "converge", "s"),
+        Metric("omega_low_pct", "omega low", "%"),
+        Metric("lock_laps", "lock", "laps"),
+        Metric("wrong_laps", "wrong br.", "laps"),
         Metric("pos_rmse_cm", "pos RMSE", "cm"),
         Metric("radius_rms_cm", "radius RMS", "cm"),
+        Metric("radius_std_mm", "r std 2nd h.", "mm"),
+        Metric("radius_off_mm", "off rails", "mm"),
     )
 
     def label(self, name: str, measure: type | None) -> str:
@@ -109,7 +181,13 @@ class TrainApp(Application):
         return f"{name} ({rung})" if rung else name
 
     def truth(self, world: Mapping[str, Any]) -> Truth | None:
-        return train_truth(world) if world.get("scenario") == "train" else None
+        from hera.nodes.world import make_scenario
+
+        try:
+            scenario = make_scenario(world)
+        except ValueError:
+            return None
+        return train_truth(world) if hasattr(scenario, "polar") else None
 
     def score(
         self, series: Series, truth: Truth | None, options: EvalOptions
@@ -118,13 +196,16 @@ class TrainApp(Application):
             return {}
         since = series.t - series.t[0]
         late, settled = since >= options.after, since >= options.settle
+        second_half = since >= since[-1] / 2
         out: dict[str, float | None] = {}
-        if series.has(OMEGA):
+        have = set(truth.columns)
+        if series.has(OMEGA) and OMEGA in have:
             (w_true,) = _truth_columns(series, truth, OMEGA)
             rel = (series.column(OMEGA) - w_true) / w_true
             out["omega_rms_pct"] = _pct(_rms(rel[late]))
             out["omega_max_pct"] = _pct(float(np.max(np.abs(rel[late]))) if late.any() else None)
             out["omega_settled_rms_pct"] = _pct(_rms(rel[settled]))
+            low = late
             outside = np.nonzero(np.abs(rel) > 0.02)[0]
             if not len(outside):
                 out["converge_s"] = 0.0
@@ -132,13 +213,28 @@ class TrainApp(Application):
                 out["converge_s"] = float(since[outside[-1] + 1])
             else:
                 out["converge_s"] = None
-        if series.has(X, Y):
+            if series.has(THETA) and THETA in have:
+                (th_true,) = _truth_columns(series, truth, THETA)
+                w_mean = float(np.mean(w_true))
+                branch = branch_scores(series.t, series.column(THETA), th_true, w_mean)
+                lock_t = branch.pop("lock_t")
+                out.update(branch)
+                if lock_t is not None:  # an echo pulling w down once the model has locked
+                    low = late & (series.t >= lock_t + options.after)
+            out["omega_low_pct"] = _pct(float(np.min(1 + rel[low])) if low.any() else None)
+        if series.has(X, Y) and {X, Y} <= have:
             x_true, y_true = _truth_columns(series, truth, X, Y)
             err = np.hypot(series.column(X) - x_true, series.column(Y) - y_true)
             out["pos_rmse_cm"] = _cm(_rms(err[settled]))
-        if series.has(RADIUS):
+        if series.has(RADIUS) and RADIUS in have:
             (r_true,) = _truth_columns(series, truth, RADIUS)
-            out["radius_rms_cm"] = _cm(_rms((series.column(RADIUS) - r_true)[settled]))
+            r = series.column(RADIUS)
+            out["radius_rms_cm"] = _cm(_rms((r - r_true)[settled]))
+            out["radius_std_mm"] = 1000 * float(np.std(r[second_half]))
+            if {RAIL_IN, RAIL_OUT} <= have:
+                lo, hi = _truth_columns(series, truth, RAIL_IN, RAIL_OUT)
+                off = np.maximum(lo - r, r - hi)[second_half]
+                out["radius_off_mm"] = 1000 * max(0.0, float(np.max(off)))
         return out
 
     def plots(
