@@ -27,6 +27,7 @@ HELP_EXAMPLES = {
     "replay": "hera replay hera-run/train --out replayed --models e7,e8 "
     "--set track_radius.radius=0.57",
     "eval": "hera eval hera-run/train",
+    "import": "hera import erlang-hera logs/2021-05 imported",
     "bench": "hera bench kalman --quick",
     "start": "start with:\n  hera up train            a cluster, its live view\n"
     "  hera eval hera-run/train score the run",
@@ -126,7 +127,7 @@ def _parser() -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="MODEL.SETTING=VALUE",
-        help="override a model setting (e.g. track_radius.radius=0.57) or the world "
+        help="override a model setting (MODEL.SETTING=VALUE) or the world "
         "(world.KEY=VALUE); repeatable",
     )
     rp.add_argument(
@@ -156,8 +157,27 @@ def _parser() -> argparse.ArgumentParser:
     )
     ev.add_argument("--plots", help="folder for the PNG plots (default RUN_DIR/eval)")
     ev.add_argument("--no-plots", action="store_true")
-    ev.add_argument("--node", help="node whose models are plotted (default: the first)")
+    ev.add_argument(
+        "--node",
+        help="node(s) whose models are plotted, comma-separated: together (default: the first)",
+    )
+    ev.add_argument(
+        "--reference",
+        metavar="FILE",
+        help="a recording <name>_<node>.csv (with its .columns.json) to score against when "
+        "the run's world has no truth",
+    )
     ev.add_argument("--json", action="store_true", help="print JSON")
+
+    im = _command(
+        sub,
+        "import",
+        "convert logs of another format into a run directory (hera replay and eval take it)",
+        HELP_EXAMPLES["import"],
+    )
+    im.add_argument("format", help="the logs' format (the installed applications' importers)")
+    im.add_argument("src", help="folder of the logs")
+    im.add_argument("out", help="the run directory to write (new or empty)")
 
     b = _command(sub, "bench", "run a benchmark: " + ", ".join(BENCHES), HELP_EXAMPLES["bench"])
     b.add_argument("name", choices=BENCHES)
@@ -225,6 +245,8 @@ def _dispatch(args: argparse.Namespace) -> int:
         return _replay(args)
     if args.cmd == "eval":
         return _eval(args)
+    if args.cmd == "import":
+        return _import(args)
     if args.cmd == "bench":
         module = importlib.import_module(f"hera.bench.{args.name}")
         return int(module.main(args.rest) or 0)
@@ -388,24 +410,43 @@ def _eval(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from hera.application import EvalOptions
-    from hera.evaluate import evaluate, format_table, plot, to_json
+    from hera.evaluate import evaluate, format_table, plot, sources, to_json
     from hera.plugins import AppIndex
 
     options = EvalOptions(after=args.after, settle=args.settle)
     index = AppIndex()
-    results = evaluate(args.run_dir, options, index)
+    results = evaluate(args.run_dir, options, index, args.reference)
     if not results:
         raise ValueError(f"{args.run_dir}: no model outputs to score (no fusion model logged)")
     if args.json:
         print(json.dumps(to_json(results), indent=1))
     else:
-        print(format_table(results))
+        print("\n".join([*sources(results), format_table(results)]))
     if not args.no_plots:
         try:
             out = args.plots or Path(args.run_dir) / "eval"
-            files = plot(args.run_dir, out, args.node, options, index)
+            nodes = args.node.split(",") if args.node else None
+            files = plot(args.run_dir, out, nodes, options, index, args.reference)
             if not args.json:
                 print("plots: " + (", ".join(str(f) for f in files) or "none"))
         except ImportError as e:
             print(f"plots skipped: {e}", file=sys.stderr)
+    return 0
+
+
+def _import(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from hera.plugins import installed_apps
+
+    importers = {f: (app, fn) for app in installed_apps() for f, fn in app.importers().items()}
+    if args.format not in importers:
+        known = ", ".join(f"{f} ({a.name})" for f, (a, _) in sorted(importers.items()))
+        raise ValueError(f"unknown log format {args.format!r}; formats: {known or 'none'}")
+    src, out = Path(args.src), Path(args.out)
+    if not src.is_dir():
+        raise ValueError(f"{src}: no such folder of logs")
+    if out.exists() and any(out.iterdir()):
+        raise ValueError(f"{out}: exists and is not empty; give a new folder")
+    print(importers[args.format][1](src, out))
     return 0

@@ -20,7 +20,7 @@ from typing import Any
 
 from hera.fusion import FusionMeasure, model_counters, spec_models, time_order
 from hera.plugins import find_measure
-from hera.recordings import CsvWriter, read_recordings
+from hera.recordings import SOURCE_FILE, CsvWriter, read_recordings
 from hera.schema import did_you_mean
 from hera.spec import ClusterSpec, load_spec
 from hera.store import Sample
@@ -151,6 +151,9 @@ def replay(
         counts[name] = writer.seq
         write_counters(out, name, node, model_counters(model))
     _write_spec(recordings, out, world)
+    if Path(out).resolve() != Path(recordings).resolve():
+        source = {"recordings": str(Path(recordings).resolve())}
+        (Path(out) / SOURCE_FILE).write_text(json.dumps(source))
     return {n: counts[n] for n in models}
 
 
