@@ -32,11 +32,15 @@ from hera.application import (
     Estimate,
     EvalOptions,
     FunctionTruth,
+    Importer,
     Metric,
     Panel,
+    Reference,
     Series,
     Truth,
 )
+from hera.models.train.erlang import import_erlang
+from hera.models.train.laps import lap_reference
 from hera.models.train.measures import (
     OmegaAcc,
     TrackBilat,
@@ -189,24 +193,39 @@ class TrainApp(Application):
             return None
         return train_truth(world) if hasattr(scenario, "polar") else None
 
+    def reference(self, recordings: Sequence[Path], world: Mapping[str, Any]) -> Reference | None:
+        """Omega from lap timing of the sonar passes (:mod:`.laps`)."""
+        return lap_reference(recordings)
+
+    def importers(self) -> Mapping[str, Importer]:
+        """``erlang-hera``: the logs of the original Erlang Hera train (:mod:`.erlang`)."""
+        return {"erlang-hera": import_erlang}
+
     def score(
         self, series: Series, truth: Truth | None, options: EvalOptions
     ) -> dict[str, float | None]:
-        if truth is None or not len(series):
+        """The metrics (module docstring) that ``truth`` allows: a reference of omega only
+        (lap timing) gives the omega ones; ``radius_std_mm`` needs no truth."""
+        if not len(series):
             return {}
         since = series.t - series.t[0]
-        late, settled = since >= options.after, since >= options.settle
         second_half = since >= since[-1] / 2
         out: dict[str, float | None] = {}
+        if series.has(RADIUS):
+            out["radius_std_mm"] = 1000 * float(np.std(series.column(RADIUS)[second_half]))
+        if truth is None:
+            return out
         have = set(truth.columns)
         if series.has(OMEGA) and OMEGA in have:
             (w_true,) = _truth_columns(series, truth, OMEGA)
-            rel = (series.column(OMEGA) - w_true) / w_true
+            known = np.isfinite(w_true)  # a reference may cover part of the run only
+            late, settled = known & (since >= options.after), known & (since >= options.settle)
+            rel = (series.column(OMEGA) - w_true) / np.where(known, w_true, 1.0)
             out["omega_rms_pct"] = _pct(_rms(rel[late]))
             out["omega_max_pct"] = _pct(float(np.max(np.abs(rel[late]))) if late.any() else None)
             out["omega_settled_rms_pct"] = _pct(_rms(rel[settled]))
             low = late
-            outside = np.nonzero(np.abs(rel) > 0.02)[0]
+            outside = np.nonzero(known & (np.abs(rel) > 0.02))[0]
             if not len(outside):
                 out["converge_s"] = 0.0
             elif outside[-1] + 1 < len(rel):
@@ -215,13 +234,14 @@ class TrainApp(Application):
                 out["converge_s"] = None
             if series.has(THETA) and THETA in have:
                 (th_true,) = _truth_columns(series, truth, THETA)
-                w_mean = float(np.mean(w_true))
+                w_mean = float(np.mean(w_true[known]))
                 branch = branch_scores(series.t, series.column(THETA), th_true, w_mean)
                 lock_t = branch.pop("lock_t")
                 out.update(branch)
                 if lock_t is not None:  # an echo pulling w down once the model has locked
                     low = late & (series.t >= lock_t + options.after)
             out["omega_low_pct"] = _pct(float(np.min(1 + rel[low])) if low.any() else None)
+        settled = since >= options.settle
         if series.has(X, Y) and {X, Y} <= have:
             x_true, y_true = _truth_columns(series, truth, X, Y)
             err = np.hypot(series.column(X) - x_true, series.column(Y) - y_true)
@@ -230,7 +250,6 @@ class TrainApp(Application):
             (r_true,) = _truth_columns(series, truth, RADIUS)
             r = series.column(RADIUS)
             out["radius_rms_cm"] = _cm(_rms((r - r_true)[settled]))
-            out["radius_std_mm"] = 1000 * float(np.std(r[second_half]))
             if {RAIL_IN, RAIL_OUT} <= have:
                 lo, hi = _truth_columns(series, truth, RAIL_IN, RAIL_OUT)
                 off = np.maximum(lo - r, r - hi)[second_half]
@@ -245,15 +264,19 @@ class TrainApp(Application):
         options: EvalOptions,
     ) -> list[Path]:
         """One PNG per quantity with every model of the ladder on it (thesis fig. 6.5), in
-        ladder order, the truth drawn under the estimates, sparse outputs as markers, the
-        y-range set by the settled estimates."""
+        ladder order, the truth (or reference) drawn under the estimates where it has the
+        quantity, sparse outputs as markers, the y-range set by the settled estimates; the
+        node in the labels when the series come from several (a replay beside an original);
+        the position error only against a truth of the position."""
         from hera.plotting import pyplot
 
         plt = pyplot()
         files = []
         have = [s for s in series if len(s)]
-        if not have or truth is None:
+        if not have:
             return []
+        known = set(truth.columns) if truth is not None else set()
+        several = len({s.node for s in have}) > 1
         t0 = min(float(s.t[0]) for s in have)
         for col, fname, title in (
             (OMEGA, "omega.png", "angular speed [rad/s]"),
@@ -261,38 +284,36 @@ class TrainApp(Application):
             (X, "position_error.png", "position error [cm]"),
         ):
             with_col = [s for s in have if s.has(col)]
-            if not with_col:
+            if not with_col or (col == X and not {X, Y} <= known):
                 continue
             fig, ax = plt.subplots(figsize=(9, 5))
             settled: list[np.ndarray] = []
-            if col != X:
+            if col != X and col in known:
                 ts = np.unique(np.concatenate([s.t for s in with_col]))[::10]
-                ax.plot(
-                    ts - t0,
-                    [truth.at(float(t))[col] for t in ts],
-                    color="0.6",
-                    lw=3,
-                    label="truth",
-                    zorder=1,
-                )
+                ref = [truth.at(float(t)).get(col, np.nan) for t in ts]  # type: ignore[union-attr]
+                what = "truth" if {X, Y} <= known else "reference"
+                ax.plot(ts - t0, ref, color="0.6", lw=3, label=what, zorder=1)
             for s in with_col:
                 if col == X:
-                    x_true, y_true = _truth_columns(s, truth, X, Y)
+                    x_true, y_true = _truth_columns(s, truth, X, Y)  # type: ignore[arg-type]
                     y = 100 * np.hypot(s.column(X) - x_true, s.column(Y) - y_true)
                 else:
                     y = s.column(col)
                 sparse = len(s) < 2 * max(1.0, float(s.t[-1] - s.t[0]))  # under 2 per second
                 style = {"ls": "none", "marker": ".", "ms": 4} if sparse else {"lw": 1}
-                ax.plot(s.t - t0, y, label=self.label(s.name, s.measure), zorder=2, **style)
+                label = self.label(s.name, s.measure) + (f" {s.node}" if several else "")
+                ax.plot(s.t - t0, y, label=label, zorder=2, **style)
                 settled.append(y[(s.t - s.t[0]) >= options.settle])
             values = np.concatenate(settled) if settled else np.array([])
+            values = values[np.isfinite(values)]
             if len(values):
                 lo, hi = np.percentile(values, [1, 99])
                 pad = 0.15 * (hi - lo) + 1e-9
                 ax.set_ylim(lo - pad if col != X else 0.0, hi + pad)
             ax.set_xlabel("time since first estimate [s]")
             ax.set_ylabel(title)
-            ax.set_title(f"{title} on node {have[0].node}")
+            nodes = ", ".join(sorted({s.node for s in have}))
+            ax.set_title(f"{title} on {'nodes' if several else 'node'} {nodes}")
             ax.grid(alpha=0.3)
             ax.legend(fontsize=8)
             fig.tight_layout()
