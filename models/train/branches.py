@@ -12,7 +12,6 @@ log-likelihood under a robust model (thesis ch. 3.5.1 "data association", with o
 - a sonar range the cell predicts in the beam: (1 - eps) N(range; h(theta), var) + eps d;
   one it predicts outside: d_out (an echo of something else: the far side of the track, a
   wall); near the beam's edge the better of the two;
-- a heading (magnetometer): N(heading - theta - offset; var);
 - a position (bilateration): N(|p - p(theta)|; var) in the plane, with outliers.
 
 Old evidence fades with time constant ``memory_s`` (a drifting speed ratio, a changed
@@ -149,11 +148,6 @@ class BranchGrid:
                 np.where(cos >= tr.cos_outer, np.maximum(inside, self.log_out), self.log_out),
             )
         self._add(ll)
-
-    def add_heading(self, heading: float, offset: float, var: float) -> None:
-        """Weigh the cells by a heading (rad) that reads theta + ``offset`` with ``var``."""
-        nu = wrap(heading - offset - self.thetas())
-        self._add(-0.5 * nu * nu / var)
 
     def add_position(
         self, x: float, y: float, radius: float, var: float, ago: float = 0.0, speed: float = 0.0

@@ -144,7 +144,8 @@ class TrainTracker:
     state); ``branches`` (72 phases
     per speed ratio; 0: no branch grid, the EKF fuses every range from the start),
     ``branch_memory_s`` (30), ``branch_var_bilat`` (0.05 m^2: the fixes' own error, for the
-    grid; the EKF's ``var_bilat`` is wider, as their errors are correlated along a pass).
+    grid; the EKF's ``var_bilat`` is wider, as their errors are correlated along a pass),
+    ``off_track`` (0.15 m: see :meth:`_bilateration`).
     """
 
     def __init__(
@@ -182,6 +183,7 @@ class TrainTracker:
         branches: int = 72,
         branch_memory_s: float = 30.0,
         branch_var_bilat: float = 0.05,
+        off_track: float = 0.15,
     ) -> None:
         if rung not in LADDER:
             raise ValueError(f"unknown rung {rung!r}: use one of {', '.join(RUNGS)}")
@@ -238,16 +240,19 @@ class TrainTracker:
         self.beam_cos = math.cos(math.radians(half_angle_deg - beam_margin_deg))
         self.beam_edge = 0
         self.t: float | None = None
-        # direction of travel: (sign, how it is known: 0 omega0, 1 a_y, 2 grid, 3 gyro)
+        # direction of travel: (sign, how it is known: 0 omega0 (a_y's mean: heading_sign),
+        # 2 the branch grid, 3 the gyroscope)
         self.direction = (1.0 if omega0 >= 0 else -1.0, 0)
         self.omega_ref = abs(omega0) or 0.5
-        self._acc_sum = self._acc_n = 0.0
+        self._acc_sum = 0.0
         self._gyro_sum = self._gyro_n = 0.0
         self.direction_fixes = 0
         self.out_of_order = 0
         self.late = 0
         self.rejected = 0
         self.seeds = 0
+        self.off_track_m = float(off_track)
+        self.off_track = 0
         if r.omega_only:
             x0, p0 = [omega0], [1.0]
         else:  # REFERENCE: x0 = [0, 0, 0, 0.5], P0 = diag(2, 2, pi, 1) (+ r = 1, P 1)
@@ -266,6 +271,7 @@ class TrainTracker:
         if acc_gain_var0 is not None:
             self.c_i = len(x0)
             x0, p0 = [*x0, 0.0], [*p0, float(acc_gain_var0)]
+        self._b_var0 = float(mag_offset_var0 or 0.0)
         if r.mag and mag_offset_var0 is not None:
             self.b_i = len(x0)
             x0, p0 = [*x0, 0.0], [*p0, float(mag_offset_var0)]
@@ -492,10 +498,35 @@ class TrainTracker:
             self._unlock()
             self._seed(b)
 
+    def _set_theta(self, theta: float, var: float) -> None:
+        """Theta set to ``theta`` with variance ``var``, uncorrelated with the rest; x, y
+        follow (:meth:`_seed`)."""
+        x, P = self.ekf.x.copy(), self.ekf.P.copy()
+        x[TH] = x[TH] + float(wrap(theta - x[TH]))
+        P[TH, :] = P[:, TH] = 0.0
+        P[TH, TH] = var
+        self._reset_xy(x, P)
+
+    def _reset_xy(self, x: np.ndarray, P: np.ndarray) -> None:
+        """Reset the filter to x, P with x, y recomputed from theta and r (their covariance
+        mapped through x = c_x + r cos th, y = c_y + r sin th)."""
+        r = self._r(x)
+        s, c = math.sin(x[TH]), math.cos(x[TH])
+        x[X], x[Y] = self.cx + r * c, self.cy + r * s
+        J = np.eye(self.n)
+        J[X, X] = J[Y, Y] = 0.0
+        J[X, TH], J[Y, TH] = -r * s, r * c
+        if self.rung.radius_state:
+            J[X, R], J[Y, R] = c, s
+        P = J @ P @ J.T
+        P[X, X] += self.q[3]
+        P[Y, Y] += self.q[3]
+        self.ekf.reset(x, 0.5 * (P + P.T))
+
     def _seed(self, b: Branch) -> None:
         """Set theta (and, without a gyroscope, w) from the grid's branch, uncorrelated with
-        the rest; x, y follow from theta and r (their covariance mapped through
-        x = c_x + r cos th, y = c_y + r sin th)."""
+        the rest, the magnetometer's offset back to its prior variance; x, y follow from
+        theta and r (:meth:`_reset_xy`)."""
         x, P = self.ekf.x.copy(), self.ekf.P.copy()
         x[TH] = x[TH] + float(wrap(b.theta - x[TH]))
         P[TH, :] = P[:, TH] = 0.0
@@ -512,18 +543,10 @@ class TrainTracker:
             P[W, :] = P[:, W] = 0.0
             P[W, W] = v_f * v_g / (v_f + v_g)
             self._set_direction(sign, 2)
-        r = self._r(x)
-        s, c = math.sin(x[TH]), math.cos(x[TH])
-        x[X], x[Y] = self.cx + r * c, self.cy + r * s
-        J = np.eye(self.n)
-        J[X, X] = J[Y, Y] = 0.0
-        J[X, TH], J[Y, TH] = -r * s, r * c
-        if self.rung.radius_state:
-            J[X, R], J[Y, R] = c, s
-        P = J @ P @ J.T
-        P[X, X] += self.q[3]
-        P[Y, Y] += self.q[3]
-        self.ekf.reset(x, 0.5 * (P + P.T))
+        if self.b_i is not None:  # an offset learnt against the old theta is unknown again
+            P[self.b_i, :] = P[:, self.b_i] = 0.0
+            P[self.b_i, self.b_i] = self._b_var0
+        self._reset_xy(x, P)
         self.seeded = True
         self._streak = 0
         self.seeds += 1
@@ -549,18 +572,16 @@ class TrainTracker:
         return sign
 
     def _watch_direction(self, a_y: float, g: float | None) -> None:
-        """Sequential tests on the signs of a_y and g: decided once the running mean is 3
-        standard errors from 0 (the gyroscope's sign outranks the accelerometer's)."""
+        """The gyroscope's sign is decided once its running mean is 3 standard errors from
+        0 (12 sigma per reading on a moving train: never wrong); a_y's is only summed, its
+        mean's sign is taken afresh every time (:meth:`heading_sign`): a test on it could
+        decide wrong on its first noisy readings and never come back."""
         if g is not None and self.direction[1] < 3:
             self._gyro_sum += g
             self._gyro_n += 1
             if abs(self._gyro_sum) > 3.0 * math.sqrt(self.var["gyro"] * self._gyro_n):
                 self._set_direction(math.copysign(1.0, self._gyro_sum), 3)
-        if self.direction[1] < 1:
-            self._acc_sum += a_y
-            self._acc_n += 1
-            if abs(self._acc_sum) > 3.0 * math.sqrt(self.var["acc"] * self._acc_n):
-                self._set_direction(math.copysign(1.0, self._acc_sum), 1)
+        self._acc_sum += a_y
 
     # -- the model interface ------------------------------------------------------------
     def process(self, sample: Sample) -> bool:
@@ -623,12 +644,10 @@ class TrainTracker:
         self._after_sonar(bool(result.rejected))
 
     def _mag(self, heading: float) -> None:
+        """A heading row, h = th + b (eq. 6.9 with the offset). Not weighed by the branch
+        grid: every reading shares the unknown offset, so taking them as independent there
+        would make the grid sure of a branch that is off by it."""
         b_i = self.b_i
-        offset = float(self.ekf.x[b_i]) if b_i is not None else 0.0
-        if self.grid is not None:
-            p_b = float(self.ekf.P[b_i, b_i]) if b_i is not None else 0.0
-            self.grid.add_heading(heading, offset, self.var["mag"] + p_b)
-            self._check_branch()
         obs = Observations()
         H = np.zeros((1, self.n))
         H[0, TH] = 1.0
@@ -642,13 +661,22 @@ class TrainTracker:
 
     def _bilateration(self, bx: float, by: float, ago: float) -> None:
         """A position fix of where the train was ``ago`` s before the filter's time (half
-        the span of its two readings): h = c + r (cos(th - w ago), sin(th - w ago))."""
+        the span of its two readings): h = c + r (cos(th - w ago), sin(th - w ago)). A fix
+        more than ``off_track`` m off the track's circle is left out (counted in
+        ``off_track``): its two readings were not of one point of the train."""
+        r = self._r(self.ekf.x)
+        if abs(math.hypot(bx - self.cx, by - self.cy) - r) > self.off_track_m:
+            self.off_track += 1  # the two ranges were not of one point of the track
+            return
         if self.grid is not None:
-            r = self._r(self.ekf.x)
             self.grid.add_position(bx, by, r, self.var["bilat_branch"], ago, self.grid_speed)
             self._check_branch()
-        if not self.seeded:
-            return
+        if not self.seeded and self.ekf.P[TH, TH] > 1.0:
+            # theta unknown yet: a fix is no ambiguous range, it tells theta by itself
+            th = math.atan2(by - self.cy, bx - self.cx) + float(self.ekf.x[W]) * ago
+            var = self.var["bilat"] / (r * r)
+            self._set_theta(th, var)
+        # fused before the grid has seeded theta too (the grid re-seeds it if it is off)
 
         def h(s: np.ndarray) -> np.ndarray:
             a, r = s[TH] - s[W] * ago, self._r(s)
@@ -730,7 +758,7 @@ class TrainTracker:
         """Diagnostic counters: samples ``late`` (dropped), ``out_of_order`` (fused late),
         sonar rows ``rejected`` by the gate or skipped at the ``beam_edge``, w mirrored
         (``direction_fixes``), theta ``seeds`` from the branch grid, tracking lost
-        (``unlocks``)."""
+        (``unlocks``), bilateration fixes ``off_track``."""
         return {
             "late": self.late,
             "out_of_order": self.out_of_order,
@@ -739,6 +767,7 @@ class TrainTracker:
             "direction_fixes": self.direction_fixes,
             "seeds": self.seeds,
             "unlocks": self.unlocks,
+            "off_track": self.off_track,
         }
 
     def estimate(self) -> tuple[float, list[float]] | None:
