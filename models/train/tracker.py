@@ -101,8 +101,8 @@ LADDER = {
 GYRO_RATIOS = (0.97, 0.985, 1.0, 1.015, 1.03)
 """Speed ratios of the branch grid of a rung with a gyroscope (w is known to its scale)."""
 ACC_RATIOS = tuple(s * 1.03**k for s in (1.0, -1.0) for k in range(-24, 24))
-"""... of one without, relative to ``|omega0|``: from a third to three times it, either way
-(a_c alone gives w too late and too noisy at low rates to be the grid's reference)."""
+"""... of one without, relative to ``|omega0|``: from half to twice it in 3 % steps, either
+way (a_c alone gives w too late and too noisy at low rates to be the grid's reference)."""
 FREEZE_LAPS = 0.5
 """The scale states wait this many laps of lock before they learn: the baseline over which
 theta's progression (from the near to the far side) tells w from the gyroscope's scale."""
@@ -710,10 +710,9 @@ class TrainTracker:
 
     def _nav_considered(self) -> list[int] | None:
         """The consider states of the acc, gyro and heading rows now: c always; k until
-        locked for
-        FREEZE_LAPS (what tells w's error from k's is theta's progression over a long
-        baseline: over a shorter one, the range model's errors dominate and would kick
-        it)."""
+        locked for FREEZE_LAPS (what tells w's error from k's is theta's progression over
+        a long baseline: over a shorter one, the range model's errors dominate and would
+        kick it)."""
         if not self._scales_frozen():
             return self._fixed or None
         return [*self._scales, *self._fixed] or None
