@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import importlib
 import json
 import logging
@@ -18,6 +17,7 @@ BENCHES = ("bus", "kalman", "sync")
 HELP_EXAMPLES = {
     "up": "hera up train",
     "node": "hera node deploy/train.toml --node sonar_1",
+    "router": "hera router deploy/two_hosts.toml --name r_a",
     "status": "hera status nav_1",
     "down": "hera down --cluster train",
     "inject": "hera inject n3 crash obs1",
@@ -68,6 +68,10 @@ def _parser() -> argparse.ArgumentParser:
     )
     up.add_argument("--overwrite", action="store_true", help="replace a previous run in --run-dir")
     up.add_argument("--interval", type=float, default=1.0, help="status refresh period, s")
+    up.add_argument(
+        "--only",
+        help="comma-separated nodes and routers to run on this host (default: all of them)",
+    )
 
     node = _command(
         sub,
@@ -81,6 +85,17 @@ def _parser() -> argparse.ArgumentParser:
     node.add_argument("--state-dir", help="where the node persists its args (calibrations)")
     node.add_argument("--parent-pid", type=int, help="stop when this process is gone")
     node.add_argument("--log-level", default="INFO")
+
+    rt = _command(
+        sub,
+        "router",
+        "run one Zenoh router of a spec (hera up runs the ones it is asked to)",
+        HELP_EXAMPLES["router"],
+    )
+    rt.add_argument("spec", help="cluster spec (TOML, an example's name, or a cluster.json)")
+    rt.add_argument("--name", required=True, help="name of the router to run")
+    rt.add_argument("--parent-pid", type=int, help="stop when this process is gone")
+    rt.add_argument("--log-level", default="INFO")
 
     st = _command(
         sub,
@@ -96,8 +111,15 @@ def _parser() -> argparse.ArgumentParser:
     inj.add_argument("fault", help="crash | hang | crash_node | stop | start")
     inj.add_argument("measure", nargs="?", help="target measure (crash, hang, stop, start)")
     for s in (st, dn, inj):
-        s.add_argument("--run-dir", help="run directory of the cluster")
+        s.add_argument("--run-dir", help="run directory of the cluster (on this host)")
         s.add_argument("--cluster", help="name of the cluster, if several run")
+        s.add_argument(
+            "--connect",
+            action="append",
+            metavar="ENDPOINT",
+            help="reach the cluster through this node or router (e.g. tcp/10.0.0.2:7447), "
+            "from any host: no run directory needed (repeatable)",
+        )
 
     ms = _command(
         sub, "measures", "list the installed measures, or show one", HELP_EXAMPLES["measures"]
@@ -135,6 +157,12 @@ def _parser() -> argparse.ArgumentParser:
         metavar="NODE",
         help="start each model at the first sample NODE's live model fused and write "
         "estimates at the live estimates' instants (to compare a replay with a live node)",
+    )
+    rp.add_argument(
+        "--smooth",
+        action="store_true",
+        help="also write RTS-smoothed estimates of each KF/EKF model to OUT/smoothed "
+        "(a run dir: hera eval OUT/smoothed scores them)",
     )
 
     ev = _command(
@@ -214,10 +242,26 @@ def _dispatch(args: argparse.Namespace) -> int:
         from hera.launcher import Launcher
 
         spec = resolve_spec(args.spec)
+        only = [x.strip() for x in args.only.split(",") if x.strip()] if args.only else None
         launcher = Launcher(
-            spec, args.run_dir, args.duration, interval=args.interval, overwrite=args.overwrite
+            spec,
+            args.run_dir,
+            args.duration,
+            interval=args.interval,
+            overwrite=args.overwrite,
+            only=only,
         )
         return launcher.run()
+    if args.cmd == "router":
+        from hera.router import run_router
+
+        spec = _load(args.spec)
+        spec.router(args.name)
+        logging.basicConfig(
+            level=args.log_level.upper(),
+            format=f"%(asctime)s {args.name} %(name)s %(levelname)s %(message)s",
+        )
+        return run_router(spec, args.name, args.parent_pid)
     if args.cmd == "status":
         return _status(args)
     if args.cmd == "down":
@@ -251,6 +295,11 @@ def _dispatch(args: argparse.Namespace) -> int:
         module = importlib.import_module(f"hera.bench.{args.name}")
         return int(module.main(args.rest) or 0)
     raise AssertionError(args.cmd)
+
+
+def _progress(text: str) -> None:
+    """A progress line of a long command (stderr, so that stdout stays the result)."""
+    print(f"  {text} ...", file=sys.stderr, flush=True)
 
 
 def _load(spec_arg: str):
@@ -292,22 +341,27 @@ def _measures(args: argparse.Namespace) -> int:
     return 0
 
 
+def _client(args: argparse.Namespace) -> ClusterClient:
+    """The cluster a tool command talks to: through ``--connect`` endpoints (any host), or
+    the one registered on this host (``--run-dir``, ``--cluster``, or the only one)."""
+    if args.connect:
+        return ClusterClient.connect(args.connect, args.cluster)
+    return ClusterClient.from_run_dir(find_run_dir(args.run_dir, args.cluster))
+
+
 def _status(args: argparse.Namespace) -> int:
     from hera.client import running_clusters
     from hera.statusview import render_node, render_status
 
-    if args.run_dir is None and args.cluster is None and len(running_clusters()) > 1:
+    if not (args.connect or args.run_dir or args.cluster) and len(running_clusters()) > 1:
         print("clusters running (pick one with --cluster NAME or --run-dir DIR):")
         for c in running_clusters():
             print(f"  {c['cluster']:<16} launcher {c['launcher_pid']:<8} {c['run_dir']}")
         return 0
-    run_dir = find_run_dir(args.run_dir, args.cluster)
-    launcher = {}
-    with contextlib.suppress(OSError, ValueError, KeyError):
-        launcher = json.loads((run_dir / "launcher.json").read_text())["nodes"]
-    with ClusterClient.from_run_dir(run_dir) as client:
+    with _client(args) as client:
         if args.node is not None:
-            client.spec.node(args.node)  # an unknown node lists the known ones
+            if client.spec is not None:
+                client.spec.node(args.node)  # an unknown node lists the known ones
             reply = client.query(args.node, "status", timeout=1.0).get(args.node)
             if reply is None:
                 print(f"hera status: node {args.node!r} did not answer", file=sys.stderr)
@@ -315,14 +369,15 @@ def _status(args: argparse.Namespace) -> int:
             print(json.dumps(reply, indent=1) if args.json else render_node(reply))
             return 0
         status = client.status(timeout=1.0)
+        launched = client.launched()
         if args.json:
             print(
                 json.dumps(
-                    {"cluster": client.spec.name, "nodes": status, "launcher": launcher}, indent=1
+                    {"cluster": client.cluster, "nodes": status, "launcher": launched}, indent=1
                 )
             )
         else:
-            print(render_status(client.spec.name, status, launcher, run_dir=str(run_dir)))
+            print(render_status(client.cluster, status, launched))
     return 0 if status else 1
 
 
@@ -330,6 +385,8 @@ def _down(args: argparse.Namespace) -> int:
     import os
     import signal
 
+    if args.connect:
+        return _down_over_the_bus(args)
     run_dir = find_run_dir(args.run_dir, args.cluster)
     pid = json.loads((run_dir / "launcher.json").read_text())["launcher_pid"]
     if not pid_alive(pid):
@@ -346,14 +403,35 @@ def _down(args: argparse.Namespace) -> int:
     return 0
 
 
+def _down_over_the_bus(args: argparse.Namespace) -> int:
+    """Stop a cluster from any host: every launcher stops what it runs, every node that no
+    launcher runs (started by hand) gets ``shutdown``; wait until no node answers."""
+    with _client(args) as client:
+        launched = client.launched()
+        from hera.bus import query_all
+
+        for lid in client.launchers():
+            list(query_all(client.session, client.keys.launcher(lid, "down"), 2.0, complete=False))
+        for node in sorted(set(client.status(timeout=1.0)) - set(launched)):
+            client.query(node, "shutdown", timeout=1.0)
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            if not client.status(timeout=0.5) and not client.launchers(0.5):
+                print(f"cluster {client.cluster} stopped")
+                return 0
+            time.sleep(0.2)
+    print(f"hera down: cluster {client.cluster} keeps answering after 20 s", file=sys.stderr)
+    return 1
+
+
 def _inject(args: argparse.Namespace) -> int:
-    run_dir = find_run_dir(args.run_dir, args.cluster)
     if args.fault in ("stop", "start"):
         verb, request = args.fault, {"measure": args.measure}
     else:
         verb, request = "inject", {"fault": args.fault, "measure": args.measure}
-    with ClusterClient.from_run_dir(run_dir) as client:
-        client.spec.node(args.node)  # an unknown node lists the known ones
+    with _client(args) as client:
+        if client.spec is not None:
+            client.spec.node(args.node)  # an unknown node lists the known ones
         replies = client.query(args.node, verb, request)
     if args.node not in replies:
         print(f"hera inject: node {args.node!r} did not answer", file=sys.stderr)
@@ -400,7 +478,16 @@ def _replay(args: argparse.Namespace) -> int:
         like = live_schedule(args.recordings, args.start_like)
         if not like:
             raise ValueError(f"no live estimates of node {args.start_like!r} in the recordings")
-    counts = replay(args.recordings, args.out, chosen, args.node, like, world)
+    counts = replay(
+        args.recordings,
+        args.out,
+        chosen,
+        args.node,
+        like,
+        world,
+        progress=_progress,
+        smooth=args.smooth,
+    )
     for name, n in counts.items():
         print(f"{name:<20} {n:>7} estimates -> {Path(args.out) / 'measures'}")
     return 0
@@ -415,6 +502,7 @@ def _eval(args: argparse.Namespace) -> int:
 
     options = EvalOptions(after=args.after, settle=args.settle)
     index = AppIndex()
+    _progress(f"scoring the model outputs of {args.run_dir}")
     results = evaluate(args.run_dir, options, index, args.reference)
     if not results:
         raise ValueError(f"{args.run_dir}: no model outputs to score (no fusion model logged)")
@@ -426,6 +514,7 @@ def _eval(args: argparse.Namespace) -> int:
         try:
             out = args.plots or Path(args.run_dir) / "eval"
             nodes = args.node.split(",") if args.node else None
+            _progress(f"drawing the plots into {out}")
             files = plot(args.run_dir, out, nodes, options, index, args.reference)
             if not args.json:
                 print("plots: " + (", ".join(str(f) for f in files) or "none"))

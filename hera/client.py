@@ -74,20 +74,110 @@ def find_run_dir(run_dir: str | None, cluster: str | None) -> Path:
     return Path(found[0]["run_dir"])
 
 
-class ClusterClient:
-    """A peer session joined to a cluster's bus, for status and control queries."""
+def _open_retrying(cfg: BusConfig, retry_s: float) -> Any:
+    """Open a session; a client that finds no router retries for ``retry_s`` seconds."""
+    import time
 
-    def __init__(self, spec: ClusterSpec) -> None:
+    deadline = time.monotonic() + retry_s
+    while True:
+        try:
+            return open_session(cfg)
+        except Exception:
+            if cfg.mode != "client" or time.monotonic() >= deadline:
+                raise
+            time.sleep(0.1)
+
+
+class ClusterClient:
+    """A session joined to a cluster's bus, for status and control queries.
+
+    Made from the cluster's spec (a peer meshing with its nodes, through its routers if it
+    has any: what ``hera up`` and tools on the same host use), or with :meth:`connect` from
+    just an endpoint (a client of one node or router: a tool on any host, no run
+    directory needed).
+    """
+
+    def __init__(
+        self,
+        spec: ClusterSpec | None,
+        session: Any = None,
+        cluster: str = "",
+        host: str | None = None,
+        retry_s: float = 0.0,
+    ) -> None:
+        """``host``: the address this tool runs on, to join through that host's routers;
+        ``retry_s``: how long to keep trying when no router answers yet (a launcher that has
+        just started its routers)."""
         self.spec = spec
-        self.keys = Keys(spec.name)
-        endpoints = tuple(spec.endpoint(n.name) for n in spec.nodes)
-        self.session = open_session(
-            BusConfig(listen=(f"tcp/{spec.host}:0",), connect=endpoints, lease_ms=spec.lease_ms)
-        )
+        self.cluster = spec.name if spec is not None else cluster
+        self.keys = Keys(self.cluster)
+        if session is None:
+            from hera.topology import router_endpoints, tool_endpoints
+
+            assert spec is not None
+            if spec.routers:  # a client of the routers (of this host, when it has some)
+                cfg = BusConfig(
+                    listen=(),
+                    connect=router_endpoints(spec, host),
+                    lease_ms=spec.lease_ms,
+                    mode="client",
+                )
+            else:  # a peer of the nodes' full mesh
+                cfg = BusConfig(
+                    listen=(f"tcp/{spec.host}:0",),
+                    connect=tool_endpoints(spec),
+                    lease_ms=spec.lease_ms,
+                )
+            session = _open_retrying(cfg, retry_s)
+        self.session = session
 
     @classmethod
     def from_run_dir(cls, run_dir: str | Path) -> ClusterClient:
         return cls(load_spec(Path(run_dir) / "cluster.json"))
+
+    @classmethod
+    def connect(
+        cls, endpoints: list[str], cluster: str | None = None, timeout: float = 2.0
+    ) -> ClusterClient:
+        """A client session to one of ``endpoints`` (a node or router of the cluster); the
+        cluster is found on the bus when ``cluster`` is not given and only one answers.
+        LookupError when nothing answers or several clusters do."""
+        session = open_session(BusConfig(listen=(), connect=tuple(endpoints), mode="client"))
+        try:
+            if cluster is None:
+                found = set()
+                for sample in query_all(session, "hera/*/ctl/*/status", timeout, complete=False):
+                    found.add(str(sample.key_expr).split("/")[1])
+                if not found:
+                    raise LookupError(f"no cluster answers at {', '.join(endpoints)}")
+                if len(found) > 1:
+                    raise LookupError(
+                        f"several clusters answer at {', '.join(endpoints)} "
+                        f"({', '.join(sorted(found))}): pick one with --cluster NAME"
+                    )
+                cluster = found.pop()
+            return cls(None, session, cluster)
+        except BaseException:
+            session.close()
+            raise
+
+    def launchers(self, timeout: float = 1.0) -> dict[str, dict[str, Any]]:
+        """The state of every launcher running processes of the cluster, by launcher id."""
+        out = {}
+        for sample in query_all(
+            self.session, self.keys.launcher("*", "status"), timeout, complete=False
+        ):
+            with contextlib.suppress(ValueError):
+                reply = json.loads(sample.payload.to_bytes())
+                out[str(sample.key_expr).split("/")[-2]] = reply
+        return out
+
+    def launched(self, timeout: float = 1.0) -> dict[str, dict[str, Any]]:
+        """What the launchers say of each node (pid, state, restarts), by node name."""
+        out: dict[str, dict[str, Any]] = {}
+        for state in self.launchers(timeout).values():
+            out.update(state.get("nodes", {}))
+        return out
 
     def query(
         self, node: str, verb: str, request: dict | None = None, timeout: float = 1.0

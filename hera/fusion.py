@@ -42,7 +42,10 @@ if TYPE_CHECKING:  # pragma: no cover
 class FusionModel(Protocol):
     """What a fusion model gives. Optionally, ``counters() -> {name: int}``: its diagnostic
     counters (samples rejected, late, ...), shown in ``hera status`` and written by
-    ``hera replay``."""
+    ``hera replay``; and, for ``hera replay --smooth`` (``hera.smoothing``), ``filter``: the
+    ``KalmanFilter`` or ``ExtendedKalmanFilter`` the model steps (one, for the whole run),
+    with ``estimate_of(x) -> list[float]``: the output columns of a state x of that filter
+    (what ``estimate`` gives for its current state)."""
 
     inputs: tuple[str, ...]
     columns: tuple[str, ...]

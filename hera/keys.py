@@ -8,6 +8,7 @@ share a network (ARCHITECTURE.md, part 1):
 - ``hera/<cluster>/args/<key>``: the replicated arguments store;
 - ``hera/<cluster>/seq/<name>/<node>``: queryable answering the latest seq a node has seen;
 - ``hera/<cluster>/ctl/<node>/<verb>``: the control plane;
+- ``hera/<cluster>/launcher/<id>/<verb>``: the launchers running the cluster's processes;
 - ``hera/<cluster>/sync/<group>/...``: the synchronisation service;
 - ``hera/<cluster>/sim/...``: the simulated physical world.
 """
@@ -83,6 +84,10 @@ class Keys:
 
     def ctl(self, node: str = "*", verb: str = "*") -> str:
         return f"{self.prefix}/ctl/{node}/{verb}"
+
+    def launcher(self, launcher: str = "*", verb: str = "*") -> str:
+        """``launcher/<id>/<verb>``: a launcher's queryable (``status``, ``down``)."""
+        return f"{self.prefix}/launcher/{launcher}/{verb}"
 
     def sync(self, group: str, rest: str = "**") -> str:
         return f"{self.prefix}/sync/{group}/{rest}"

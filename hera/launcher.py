@@ -31,6 +31,7 @@ import sys
 import threading
 import time
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -38,6 +39,7 @@ from typing import IO, Any
 from hera.application import Panel
 from hera.client import ClusterClient, registry_dir
 from hera.fusion import spec_models
+from hera.keys import Keys
 from hera.node import EXIT_CONFIG, FATAL
 from hera.panel import estimates_panels
 from hera.plugins import AppIndex
@@ -51,19 +53,22 @@ START_INTERVAL = 10.0
 RESTART_DELAY = 0.05
 
 
-def busy_ports(spec: ClusterSpec) -> list[str]:
-    """One problem per fixed port of the spec that is already in use on its host."""
+def busy_ports(spec: ClusterSpec, local: set[str] | None = None) -> list[str]:
+    """One problem per fixed port of the spec's nodes and routers run here (``local``,
+    default all) that is already in use on its host."""
     out = []
-    for n in spec.nodes:
-        if not n.port:
+    for part in (*spec.nodes, *spec.routers):
+        if not part.port or (local is not None and part.name not in local):
             continue
+        host = part.host or spec.host
+        what = "router" if part in spec.routers else "node"
         with socket.socket() as s:
             try:
-                s.bind((spec.host, n.port))
+                s.bind((host, part.port))
             except OSError as e:
                 out.append(
-                    f"{spec.source}: node {n.name!r}: port {n.port} on {spec.host} is not free "
-                    f"({e.strerror}): change [cluster] base_port or the node's port"
+                    f"{spec.source}: {what} {part.name!r}: port {part.port} on {host} is not "
+                    f"free ({e.strerror}): change [cluster] base_port or its port"
                 )
     return out
 
@@ -149,25 +154,41 @@ class Launcher:
         out: IO[str] | None = None,
         interval: float = 1.0,
         overwrite: bool = False,
+        only: Sequence[str] | None = None,
     ) -> None:
         spec = check_spec(load_spec(spec_path))
-        busy = busy_ports(spec)
+        names = [n.name for n in spec.nodes] + [r.name for r in spec.routers]
+        if only is not None:
+            unknown = [x for x in only if x not in names]
+            if unknown:
+                raise SpecError(
+                    f"{spec.source}: --only names {unknown}, which are not nodes or routers of "
+                    f"the spec ({', '.join(names)})"
+                )
+        self.local = set(names if only is None else only)
+        busy = busy_ports(spec, self.local)
         if busy:
             raise SpecError(busy)
-        if spec.base_port == 0 and not all(n.port for n in spec.nodes):
-            spec = spec.with_ports(free_ports(spec.host, len(spec.nodes)))
+        parts = [*spec.nodes, *spec.routers]
+        if spec.base_port == 0 and not all(p.port or p.listen for p in parts):
+            spec = spec.with_ports(free_ports(spec.host, len(parts)))
         if "epoch" not in spec.world:
             spec = spec.with_world(epoch=time.time())
         self.spec: ClusterSpec = spec
+        self.link: Path | None = None
         if run_dir is None:
             self.run_dir = new_run_dir(spec.name)
+            link = self.run_dir.parent / spec.name
+            self.link = link if link.is_symlink() else None
         else:
             self.run_dir = prepare_run_dir(Path(run_dir), overwrite)
         self.state_dir = state_dir(spec.name, self.run_dir, run_dir is not None)
         self.duration = duration
         self.out = out or sys.stdout
         self.interval = interval
-        self.nodes = {n.name: NodeProc(n.name) for n in spec.nodes}
+        self.routers = {r.name: NodeProc(r.name) for r in spec.routers if r.name in self.local}
+        self.nodes = {n.name: NodeProc(n.name) for n in spec.nodes if n.name in self.local}
+        self.id = f"{socket.gethostname()}-{os.getpid()}".replace("/", "_")
         self.shown = shown_measures(spec, AppIndex())
         self.index = AppIndex()
         self.stopping = threading.Event()
@@ -176,23 +197,38 @@ class Launcher:
         self.registry_file = registry_dir() / f"{spec.name}-{os.getpid()}.json"
 
     # -- process management -------------------------------------------------------------
+    def host(self) -> str | None:
+        """The address of the host this launcher runs on (that of its nodes and routers)."""
+        for part in (*self.spec.routers, *self.spec.nodes):
+            if part.name in self.local:
+                return part.host or self.spec.host
+        return None
+
+    def _procs(self) -> list[NodeProc]:
+        """Every process this launcher runs: the routers first, then the nodes."""
+        return [*self.routers.values(), *self.nodes.values()]
+
     def _spawn(self, np: NodeProc) -> None:
         log = self._logs.get(np.name)
         if log is None:
             log = open(self.run_dir / "logs" / f"{np.name}.log", "ab")  # noqa: SIM115
             self._logs[np.name] = log
-        cmd = node_command(
-            "node",
-            str(self.run_dir / "cluster.json"),
-            "--node",
-            np.name,
-            "--run-dir",
-            str(self.run_dir),
-            "--state-dir",
-            str(self.state_dir),
-            "--parent-pid",
-            str(os.getpid()),
-        )
+        spec_file = str(self.run_dir / "cluster.json")
+        parent = ("--parent-pid", str(os.getpid()))
+        if np.name in self.routers:
+            cmd = node_command("router", spec_file, "--name", np.name, *parent)
+        else:
+            cmd = node_command(
+                "node",
+                spec_file,
+                "--node",
+                np.name,
+                "--run-dir",
+                str(self.run_dir),
+                "--state-dir",
+                str(self.state_dir),
+                *parent,
+            )
         np.proc = subprocess.Popen(
             cmd,
             stdout=log,
@@ -249,11 +285,33 @@ class Launcher:
     def _say(self, text: str) -> None:
         print(f"[hera up {time.strftime('%H:%M:%S')}] {text}", file=self.out, flush=True)
 
-    def _write_launcher_state(self) -> None:
-        state = {
+    def state(self) -> dict[str, Any]:
+        """This launcher's state: its id, host, pid, run dir, nodes and routers."""
+        return {
+            "launcher": self.id,
+            "host": socket.gethostname(),
             "launcher_pid": os.getpid(),
+            "run_dir": str(self.run_dir),
             "nodes": {n: p.info() for n, p in self.nodes.items()},
+            "routers": {n: p.info() for n, p in self.routers.items()},
         }
+
+    def _on_query(self, query: Any) -> None:
+        """``hera/<cluster>/launcher/<id>/<verb>``: ``status`` (its state) or ``down`` (stop
+        the processes it runs), so tools reach launchers over the bus from any host."""
+        with query:
+            verb = str(query.key_expr).rsplit("/", 1)[-1]
+            if verb == "down":
+                self.stopping.set()
+                reply = {"ok": True, "stopping": sorted(self.nodes) + sorted(self.routers)}
+            elif verb == "status":
+                reply = {"ok": True, **self.state()}
+            else:
+                reply = {"ok": False, "error": f"unknown launcher verb {verb!r}: status, down"}
+            query.reply(Keys(self.spec.name).launcher(self.id, verb), json.dumps(reply))
+
+    def _write_launcher_state(self) -> None:
+        state = self.state()
         tmp = self.run_dir / "launcher.json.tmp"
         tmp.write_text(json.dumps(state))
         os.replace(tmp, self.run_dir / "launcher.json")
@@ -278,16 +336,21 @@ class Launcher:
             handlers[sig] = signal.signal(sig, lambda *_: self.stopping.set())
         client = None
         try:
-            for np in self.nodes.values():
+            for np in self._procs():
                 self._spawn(np)
+            routers = f" and {len(self.routers)} routers" if self.routers else ""
             self._say(
-                f"cluster {self.spec.name!r}: {len(self.nodes)} nodes, run dir {self.run_dir}"
+                f"cluster {self.spec.name!r}: {len(self.nodes)} nodes{routers}, run dir "
+                f"{self.run_dir}"
             )
-            client = ClusterClient(self.spec)
+            client = ClusterClient(self.spec, host=self.host(), retry_s=15.0)
+            client.session.declare_queryable(
+                Keys(self.spec.name).launcher(self.id, "*"), self._on_query, complete=True
+            )
             started = time.monotonic()
             next_view = started + self.interval
             while not self.stopping.is_set():
-                for np in self.nodes.values():
+                for np in self._procs():
                     self._check(np)
                 self._write_launcher_state()
                 now = time.monotonic()
@@ -314,13 +377,18 @@ class Launcher:
 
     def _next_steps(self) -> str:
         """Where the run is and what to run next (printed when the cluster has stopped)."""
-        rel = os.path.relpath(self.run_dir)
-        run = str(self.run_dir) if rel.startswith("..") else rel
+
+        def short(path: Path) -> str:
+            rel = os.path.relpath(path)
+            return str(path) if rel.startswith("..") else rel
+
+        run = short(self.run_dir)
         if self.failed:
             return f"stopped: {self.failed}; logs in {run}/logs"
         text = f"stopped; the run is in {run}"
         if spec_models(self.spec):
-            text += f"; next: hera eval {run}  (or hera replay {run} --out DIR)"
+            name = short(self.link) if self.link is not None else run
+            text += f"; next: hera eval {name}"
         return text
 
     def _show(self, client: ClusterClient, uptime: float) -> None:
@@ -342,6 +410,7 @@ class Launcher:
             panels=panels,
             width=width,
             height=height - 1,
+            routers={n: p.info() for n, p in self.routers.items()},
         )
         self.out.write(("\x1b[H\x1b[2J" if tty else "") + text + "\n")
         self.out.flush()
@@ -360,7 +429,7 @@ class Launcher:
             return [Panel(f"estimates: query failed ({e})", ("",))]
 
     def _stop_all(self) -> None:
-        procs = [p.proc for p in self.nodes.values() if p.proc is not None]
+        procs = [p.proc for p in reversed(self._procs()) if p.proc is not None]
         for p in procs:
             if p.poll() is None:
                 with contextlib.suppress(ProcessLookupError):
@@ -373,7 +442,7 @@ class Launcher:
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
-        for np in self.nodes.values():
+        for np in self._procs():
             np.state = "stopped"
         with contextlib.suppress(OSError):
             self._write_launcher_state()

@@ -23,6 +23,7 @@ node that exits non-zero, but 78.
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import logging
 import os
 import signal
@@ -35,7 +36,7 @@ from typing import Any
 import zenoh
 
 from hera.args import ArgsStore
-from hera.bus import BusConfig, open_session, tcp_endpoint
+from hera.bus import open_session
 from hera.control import EXIT_INJECTED_CRASH, ControlPlane
 from hera.csvlog import CsvLog
 from hera.datapath import DataPath
@@ -49,6 +50,7 @@ from hera.services import NodeService, ServiceContext, ServiceFactory, SlotServi
 from hera.spec import ClusterSpec
 from hera.store import Store
 from hera.supervisor import Child, Supervisor
+from hera.topology import bus_config
 from hera.worker import Worker
 
 log = logging.getLogger("hera.node")
@@ -122,11 +124,8 @@ class Node:
     def start(self) -> None:
         """Join the bus, recover state from peers and start the services and measures."""
         self._select_estimation_backend()
-        me = self.spec.endpoint(self.name)
-        others = [tcp_endpoint(self.spec.host, n.port) for n in self.spec.nodes if n.port]
-        bus = BusConfig(
-            listen=(me,), connect=tuple(e for e in others if e != me), lease_ms=self.spec.lease_ms
-        )
+        bus = bus_config(self.spec, self.name)
+        me = ", ".join(bus.listen) or "no endpoint (a client)"
         try:
             self.session = s = open_session(bus)
         except zenoh.ZError as e:
@@ -158,16 +157,15 @@ class Node:
         log.info("node %s up on %s with %d measures", self.name, me, len(self.decl.measures))
 
     def _select_estimation_backend(self) -> None:
-        """Nodes fuse on numpy unless the spec asks for numba ([cluster] estimation_backend):
-        at sensor rates a numpy step costs well under a millisecond, while numba compiles
-        its kernels for seconds at first use. With numba they are compiled (or loaded from
-        numba's cache) here, before any measure runs, so no first step stalls."""
-        from hera import estimation
+        """Nodes fuse on numpy unless the spec asks for numba ([cluster] estimation_backend).
+        The choice applies when a measure makes its first filter: a node that runs none
+        never imports numba (about 65 MB) nor loads the kernels (about 80 MB more)."""
+        from hera.estimation import backend
 
-        estimation.set_backend(self.spec.estimation_backend)
-        spent = estimation.warmup()
-        if spent:
-            log.info("estimation kernels ready in %.2f s", spent)
+        name = self.spec.estimation_backend
+        if name == "numba" and importlib.util.find_spec("numba") is None:
+            raise FatalStart("estimation_backend = 'numba' but numba is not installed")
+        backend.prefer(name)
 
     def _recover(self) -> None:
         """Wait briefly for live peers, then fetch args and this node's latest seqs."""

@@ -23,8 +23,9 @@ def estimates_panels(
     index: AppIndex,
 ) -> list[Panel]:
     """The panels of the latest estimates in ``samples`` (the ``store`` control verb's
-    samples: name, node, t, values) of the models ``models`` (publication name -> measure
-    class)."""
+    samples: name, node, t, values) of the measures ``models`` (publication name -> measure
+    class): each application's own panel (none if it has none), and a plain one for the
+    models of no application."""
     by_app: dict[Any, list[Estimate]] = defaultdict(list)
     for s in samples:
         cls = models.get(s["name"])
@@ -39,8 +40,12 @@ def estimates_panels(
     panels = []
     for app, estimates in by_app.items():
         estimates.sort(key=lambda e: (*index.rank(e.measure), e.name, e.node))
-        panel = app.panel(estimates, app.truth(world)) if app is not None else None
-        panels.append(panel or plain_panel(estimates))
+        if app is None:
+            panels.append(plain_panel(estimates))
+            continue
+        panel = app.panel(estimates, app.truth(world))
+        if panel is not None:
+            panels.append(panel)
     return panels
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import shutil
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -22,6 +22,7 @@ from hera.fusion import FusionMeasure, model_counters, spec_models, time_order
 from hera.plugins import find_measure
 from hera.recordings import SOURCE_FILE, CsvWriter, read_recordings
 from hera.schema import did_you_mean
+from hera.smoothing import NotSmoothable, SmoothedRun, smoothed_dir
 from hera.spec import ClusterSpec, load_spec
 from hera.store import Sample
 
@@ -100,9 +101,12 @@ def replay(
     node: str = "replay",
     like: Mapping[str, tuple[float, set[int]]] | None = None,
     world: Mapping[str, Any] | None = None,
+    progress: Callable[[str], None] | None = None,
+    smooth: bool = False,
 ) -> dict[str, int]:
     """Run each model (name -> (measure use, model params)) over ``recordings``; write its
-    estimates to ``out``; return the number of estimates per model.
+    estimates to ``out``; return the number of estimates per model. ``progress`` is told
+    what is being done as it goes (one line each).
 
     Chained models run in dependency order in this one call: a model whose inputs include
     another replayed model's output takes that model's replayed estimates (published by
@@ -112,6 +116,9 @@ def replay(
     a live node: each model starts at the live model's first sample and writes estimates
     only at the live estimates' instants, so the two are compared on the same estimates.
     ``world``: the world table written to ``out/cluster.json`` (default: the recordings').
+
+    ``smooth``: also write each model's RTS-smoothed estimates (see :mod:`hera.smoothing`);
+    a model that cannot be smoothed is said so through ``progress`` and left out.
     """
     instances = {}
     for name, (use, params) in models.items():
@@ -119,14 +126,17 @@ def replay(
         if not issubclass(cls, FusionMeasure):
             raise ValueError(f"{use!r} is not a fusion model: it cannot be replayed")
         instances[name] = cls.make_model(params, f"model {name!r} ({use})")
+    say = progress or (lambda _text: None)
     order = dependency_order(instances)
     inputs = {n for m in instances.values() for n in m.inputs}
     recorded = inputs - set(instances)
     known = inputs | set(instances)
+    say(f"reading the recordings of {', '.join(sorted(recorded))} in {recordings}")
     samples = read_recordings(recordings, recorded, known=known) if recorded else []
+    say(f"{len(samples)} samples; running {len(instances)} models")
     produced: dict[str, list[Sample]] = {}
     counts = {}
-    for name in order:
+    for i, name in enumerate(order, start=1):
         model = instances[name]
         writer = CsvWriter(out, name, node, model.columns)
         t_start, instants = (like or {}).get(name, (float("-inf"), None))
@@ -136,6 +146,7 @@ def replay(
         if upstream:
             feed = time_order([*samples, *(s for u in upstream for s in u)])
         outputs: list[Sample] = []
+        smoother = _smoother(model, name, say) if smooth else None
         try:
             for s in feed:
                 if s.t >= t_start and s.name in model.inputs and model.process(s):
@@ -145,16 +156,35 @@ def replay(
                         outputs.append(
                             Sample(name, node, writer.seq, t, 0.0, 0.0, tuple(map(float, values)))
                         )
+                        if smoother is not None:
+                            smoother.mark(t)
         finally:
             writer.close()
         produced[name] = outputs
         counts[name] = writer.seq
         write_counters(out, name, node, model_counters(model))
+        say(f"[{i}/{len(instances)}] {name}: {writer.seq} estimates")
+        if smoother is not None:
+            rows = smoother.write(out, name, node, model.columns)
+            say(f"{name}: {rows} smoothed estimates -> {smoothed_dir(out) / 'measures'}")
     _write_spec(recordings, out, world)
+    written = Path(out) / "cluster.json"
+    spec_file = written if written.exists() else Path(recordings) / "cluster.json"
+    if spec_file.exists() and smooth and smoothed_dir(out).exists():
+        shutil.copy(spec_file, smoothed_dir(out) / "cluster.json")  # the world, for hera eval
     if Path(out).resolve() != Path(recordings).resolve():
         source = {"recordings": str(Path(recordings).resolve())}
         (Path(out) / SOURCE_FILE).write_text(json.dumps(source))
     return {n: counts[n] for n in models}
+
+
+def _smoother(model: Any, name: str, say: Callable[[str], None]) -> SmoothedRun | None:
+    """``--smooth``: a recorder of the model's filter, or None (said) if it has none."""
+    try:
+        return SmoothedRun(model, f"model {name!r}")
+    except NotSmoothable as e:
+        say(str(e))
+        return None
 
 
 def _write_spec(recordings: str | Path, out: str | Path, world: Mapping[str, Any] | None) -> None:

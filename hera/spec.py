@@ -22,11 +22,12 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from hera.bus import DEFAULT_LEASE_MS, tcp_endpoint
+from hera.bus import DEFAULT_LEASE_MS
 from hera.keys import check_chunk
 from hera.measure import MEASURE_TABLE, MeasureSpec, default_name
 from hera.schema import (
     ANY,
+    BOOL,
     REQUIRED,
     STR,
     Kind,
@@ -70,6 +71,15 @@ def _chunk(what: str):
 NAME = text(_chunk("name"), "a name")
 
 
+def _endpoint(value: str) -> None:
+    proto, _, rest = value.partition("/")
+    if proto not in ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream") or ":" not in rest:
+        raise ValueError("must be an endpoint like 'tcp/10.0.0.2:7447'")
+
+
+ENDPOINT = text(_endpoint, "an endpoint like 'tcp/10.0.0.2:7447'")
+
+
 def _port_base(v: Any) -> int:
     if isinstance(v, bool) or not isinstance(v, int) or not (v == 0 or 1024 <= v < 65000):
         raise ValueError("must be 0 (pick free ports) or an integer within [1024, 65000)")
@@ -95,6 +105,44 @@ class NodeSpec:
     measures: tuple[MeasureSpec, ...] = setting(
         (), ANY, "its measures, each a `[[nodes.measures]]` table (see the measure keys)"
     )
+    host: str | None = setting(
+        None, STR, "address of the host it runs on, which it listens on (default: [cluster] host)"
+    )
+    mode: str = setting(
+        "peer",
+        choice("peer", "client"),
+        "`peer` (listens, meshes with the others) or `client` (talks through a router only)",
+    )
+    listen: tuple[str, ...] | None = setting(
+        None, list_of(ENDPOINT, "a list of endpoints"), "its listen endpoints (default: host:port)"
+    )
+    connect: tuple[str, ...] | None = setting(
+        None,
+        list_of(ENDPOINT, "a list of endpoints"),
+        "endpoints it connects to (default: the routers of its host, else every router, "
+        "else every other node)",
+    )
+
+
+@dataclass(frozen=True)
+class RouterSpec:
+    """One Zenoh router: a ``[[routers]]`` entry (``hera router SPEC --name NAME``)."""
+
+    name: str = setting(REQUIRED, NAME, "router name")
+    host: str | None = setting(
+        None, STR, "address of the host it runs on (default: [cluster] host)"
+    )
+    port: int = setting(
+        0, number(0, 65535, integer=True), "TCP port (0: after the nodes' ports, or picked)"
+    )
+    listen: tuple[str, ...] | None = setting(
+        None, list_of(ENDPOINT, "a list of endpoints"), "its listen endpoints (default: host:port)"
+    )
+    connect: tuple[str, ...] | None = setting(
+        None,
+        list_of(ENDPOINT, "a list of endpoints"),
+        "endpoints it connects to (default: every other router)",
+    )
 
 
 @dataclass(frozen=True)
@@ -102,10 +150,13 @@ class ClusterSpec:
     """A whole cluster; ``base_port == 0`` means "pick free ports at launch"."""
 
     nodes: tuple[NodeSpec, ...]
+    routers: tuple[RouterSpec, ...] = ()
     name: str = setting(
         REQUIRED, NAME, "cluster name: the key prefix `hera/<name>/`", table="cluster"
     )
-    host: str = setting("127.0.0.1", STR, "address every node listens on", table="cluster")
+    host: str = setting(
+        "127.0.0.1", STR, "address nodes and routers listen on unless they say", table="cluster"
+    )
     base_port: int = setting(
         0,
         PORT_BASE,
@@ -124,10 +175,17 @@ class ClusterSpec:
         "sync leader lease; the longest sync slot is half of it",
         table="cluster",
     )
+    multicast_scouting: bool = setting(
+        False,
+        BOOL,
+        "let Zenoh find peers by multicast too (off: explicit endpoints and gossip only)",
+        table="cluster",
+    )
     estimation_backend: str = setting(
         "numpy",
         choice("numpy", "numba", "auto"),
-        "`numba` compiles the estimation kernels at node start; `auto` uses numba if installed",
+        "`numba`: compiled estimation kernels, loaded when a measure makes its first filter; "
+        "`auto` uses numba if installed",
         table="cluster",
     )
     strategy: str = setting(
@@ -174,15 +232,22 @@ class ClusterSpec:
         known = ", ".join(n.name for n in self.nodes)
         raise SpecError(f"{self.source}: no node {name!r} in the spec (nodes: {known})")
 
+    def router(self, name: str) -> RouterSpec:
+        """The router called ``name``; SpecError listing the known names otherwise."""
+        for r in self.routers:
+            if r.name == name:
+                return r
+        known = ", ".join(r.name for r in self.routers) or "none"
+        raise SpecError(f"{self.source}: no router {name!r} in the spec (routers: {known})")
+
     def endpoint(self, name: str) -> str:
-        """The TCP endpoint node ``name`` listens on."""
-        n = self.node(name)
-        if not n.port:
-            raise SpecError(
-                f"{self.source}: node {name!r} has no port; set [cluster] base_port "
-                "or start the cluster with 'hera up', which picks free ports"
-            )
-        return tcp_endpoint(self.host, n.port)
+        """The first endpoint node (or router) ``name`` listens on."""
+        from hera.topology import listen_endpoints
+
+        eps = listen_endpoints(self, name)
+        if not eps:
+            raise SpecError(f"{self.source}: {name!r} listens on nothing (a client)")
+        return eps[0]
 
     def sync_groups(self) -> dict[str, list[str]]:
         """Every sync group with the nodes that host its service."""
@@ -197,9 +262,12 @@ class ClusterSpec:
         return [(n.name, m) for n in self.nodes for m in n.measures]
 
     def with_ports(self, ports: list[int]) -> ClusterSpec:
-        """A copy where node i listens on ``ports[i]``."""
-        nodes = tuple(replace(n, port=p) for n, p in zip(self.nodes, ports, strict=True))
-        return replace(self, nodes=nodes)
+        """A copy where node i, then router j, listens on ``ports[i]``, ``ports[n + j]``
+        (one port per node, then per router)."""
+        n = len(self.nodes)
+        nodes = tuple(replace(x, port=p) for x, p in zip(self.nodes, ports[:n], strict=True))
+        routers = tuple(replace(r, port=p) for r, p in zip(self.routers, ports[n:], strict=True))
+        return replace(self, nodes=nodes, routers=routers)
 
     def with_world(self, **values: Any) -> ClusterSpec:
         """A copy with ``values`` added to the world table."""
@@ -214,6 +282,7 @@ CLUSTER_TABLE = table_of(ClusterSpec, "[cluster]", table="cluster")
 SUPERVISOR_TABLE = table_of(ClusterSpec, "[supervisor]", table="supervisor")
 LOGGING_TABLE = table_of(ClusterSpec, "[logging]", table="logging")
 NODE_TABLE = table_of(NodeSpec, "[[nodes]]")
+ROUTER_TABLE = table_of(RouterSpec, "[[routers]]")
 DEFAULTS_TABLE = MEASURE_TABLE.without("use", "name")
 PLACEMENT = Table(
     "[[measures]]",
@@ -232,7 +301,16 @@ PLACEMENT = Table(
         ),
     ],
 )
-TOP_LEVEL = ("cluster", "supervisor", "logging", "world", "defaults", "nodes", "measures")
+TOP_LEVEL = (
+    "cluster",
+    "supervisor",
+    "logging",
+    "world",
+    "defaults",
+    "nodes",
+    "routers",
+    "measures",
+)
 
 
 def reference() -> str:
@@ -243,6 +321,7 @@ def reference() -> str:
         ("`[supervisor]`", SUPERVISOR_TABLE),
         ("`[logging]`", LOGGING_TABLE),
         ("`[[nodes]]`", NODE_TABLE),
+        ("`[[routers]]`", ROUTER_TABLE),
         ("`[[nodes.measures]]`, `[[measures]]` (and `[defaults]`, all but use and name)", None),
         ("`[[measures]]` only", PLACEMENT),
     ):
@@ -274,17 +353,28 @@ def load_spec(path: str | Path) -> ClusterSpec:
 def from_resolved(raw: dict[str, Any]) -> ClusterSpec:
     """The spec of a resolved JSON (:meth:`ClusterSpec.to_json`)."""
     raw = dict(raw)
+
+    def tup(v: Any) -> tuple | None:
+        return None if v is None else tuple(v)
+
     nodes = tuple(
         NodeSpec(
-            n["name"],
-            n["port"],
-            tuple(n["sync_hosts"]),
-            tuple(MeasureSpec(**m) for m in n["measures"]),
+            **{
+                **n,
+                "sync_hosts": tuple(n["sync_hosts"]),
+                "measures": tuple(MeasureSpec(**m) for m in n["measures"]),
+                "listen": tup(n.get("listen")),
+                "connect": tup(n.get("connect")),
+            }
         )
         for n in raw.pop("nodes")
     )
+    routers = tuple(
+        RouterSpec(**{**r, "listen": tup(r.get("listen")), "connect": tup(r.get("connect"))})
+        for r in raw.pop("routers", [])
+    )
     raw["log_names"] = tuple(raw["log_names"])
-    return ClusterSpec(nodes=nodes, **raw)
+    return ClusterSpec(nodes=nodes, routers=routers, **raw)
 
 
 def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
@@ -320,6 +410,7 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
         here = where(f"[[nodes]] #{i}" + (f" ({label})" if isinstance(label, str) else ""))
         n = NODE_TABLE.parse(raw, here, problems)
         if "name" in n:
+            n.pop("measures", None)
             n["_where"], n["_raw_measures"] = here, (raw or {}).get("measures", [])
             nodes.append(n)
     names = [n["name"] for n in nodes]
@@ -391,16 +482,60 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
         for dup in sorted({x for x in pub if pub.count(x) > 1}):
             problems.append(f"{source}: node {n['name']}: two measures publish as {dup!r}")
         port = n.get("port") or (base_port + i if base_port else 0)
-        built.append(NodeSpec(n["name"], port, n.get("sync_hosts", ()), tuple(ms)))
-    ports = [n.port for n in built if n.port]
-    for dup in sorted({p for p in ports if ports.count(p) > 1}):
-        users = [n.name for n in built if n.port == dup]
-        problems.append(f"{source}: [[nodes]]: nodes {users} all listen on port {dup}")
+        fields = {k: v for k, v in n.items() if k not in ("name", "port", "measures")}
+        built.append(NodeSpec(n["name"], port, measures=tuple(ms), **fields))
+    routers = []
+    raw_routers = data.get("routers", [])
+    if not isinstance(raw_routers, list):
+        problems.append(f"{source}: [[routers]] must be a list of tables")
+        raw_routers = []
+    for j, raw in enumerate(raw_routers, start=1):
+        label = raw.get("name") if isinstance(raw, dict) else None
+        here = where(f"[[routers]] #{j}" + (f" ({label})" if isinstance(label, str) else ""))
+        r = ROUTER_TABLE.parse(raw, here, problems)
+        if "name" in r:
+            if not r.get("port") and base_port:
+                r["port"] = base_port + len(nodes) + j - 1
+            routers.append(RouterSpec(**r))
+    every = [n.name for n in built] + [r.name for r in routers]
+    for dup in sorted({x for x in every if every.count(x) > 1} - set(names)):
+        problems.append(f"{source}: [[routers]]: the name {dup!r} is used twice")
+    for dup in sorted({r.name for r in routers} & set(names)):
+        problems.append(f"{source}: [[routers]]: {dup!r} is the name of a node too")
+    hosts = [
+        (x.host or cluster.get("host", "127.0.0.1"), x.port, x.name) for x in [*built, *routers]
+    ]
+    seen: dict[tuple[str, int], list[str]] = {}
+    for host, port, name in hosts:
+        if port:
+            seen.setdefault((host, port), []).append(name)
+    for (host, port), users in sorted(seen.items()):
+        if len(users) > 1:
+            problems.append(f"{source}: {users} all listen on {host}:{port}")
+    spread = {h for h, _, _ in hosts}
+    unset = [n for h, p, n in hosts if not p]
+    if len(spread) > 1 and unset:
+        problems.append(
+            f"{source}: the spec spans the hosts {sorted(spread)}, so every node and router "
+            f"needs a fixed port: set [cluster] base_port or a port for {unset}"
+        )
+    for n in built:
+        if n.mode == "client" and not routers and n.connect is None:
+            problems.append(
+                f"{source}: node {n.name!r} is a client, which talks through a router: add a "
+                "[[routers]] entry or give it connect endpoints"
+            )
     log_node = logging_t.get("log_node")
     if log_node is not None and log_node not in per_node:
         problems.append(f"{source}: [logging]: node {log_node!r} is not a node of the spec")
     if problems:
         raise SpecError(problems)
     return ClusterSpec(
-        nodes=tuple(built), world=dict(world), source=source, **cluster, **sup, **logging_t
+        nodes=tuple(built),
+        routers=tuple(routers),
+        world=dict(world),
+        source=source,
+        **cluster,
+        **sup,
+        **logging_t,
     )

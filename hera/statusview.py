@@ -105,9 +105,10 @@ def render_view(
     panels: Sequence[Panel] = (),
     width: int = 80,
     height: int = 24,
+    routers: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> str:
     """The compact view (see the module docstring), at most ``height`` lines of at most
-    ``width`` characters."""
+    ``width`` characters; ``routers``: the launcher's routers (name -> pid, state)."""
     launcher = launcher or {}
     names = sorted(set(status) | set(launcher))
     up = sum(1 for n in names if n in status)
@@ -121,7 +122,16 @@ def render_view(
         head += f", {uptime:.0f} s"
     if run_dir:
         head += f", run {run_dir}"
-    top = [head, *node_rows(status, launcher), *sync_rows(status), *problem_rows(status)]
+    top = [head, *node_rows(status, launcher)]
+    if routers:
+        top.append(
+            "routers: "
+            + ", ".join(
+                f"{n} {r.get('state', '?')} (pid {r.get('pid')})"
+                for n, r in sorted(routers.items())
+            )
+        )
+    top += [*sync_rows(status), *problem_rows(status)]
     body: list[str] = []
     for p in panels:
         body += ["", *render_panel(p).splitlines()]

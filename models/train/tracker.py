@@ -773,7 +773,17 @@ class TrainTracker:
         """(time, state) of the latest estimate, theta wrapped to (-pi, pi]."""
         if self.t is None:
             return None
-        x = [float(v) for v in self.ekf.x[: self.n_out]]
+        return self.t, self.estimate_of(self.ekf.x)
+
+    # -- smoothing (hera replay --smooth) -----------------------------------------------
+    @property
+    def filter(self) -> ExtendedKalmanFilter:
+        """The EKF this model steps (recorded and RTS-smoothed by ``hera replay --smooth``)."""
+        return self.ekf
+
+    def estimate_of(self, x: np.ndarray) -> list[float]:
+        """The output columns of a state x, as ``estimate`` gives them for the filter's."""
+        out = [float(v) for v in x[: self.n_out]]
         if not self.rung.omega_only:
-            x[TH] = math.atan2(math.sin(x[TH]), math.cos(x[TH]))
-        return self.t, x
+            out[TH] = math.atan2(math.sin(out[TH]), math.cos(out[TH]))
+        return out

@@ -45,20 +45,20 @@ MEASURE_KEYS = (
             {"nodes": [{"nmae": "a"}]},
             (
                 "s.toml: [[nodes]] #1: unknown key 'nmae' (did you mean 'name'?); known keys: "
-                "name, port, sync_hosts, measures",
+                "name, port, sync_hosts, measures, host, mode, listen, connect",
                 "s.toml: [[nodes]] #1: name is required (node name, the `<node>` of its keys)",
             ),
         ),
         (
             {"nodes": [{"name": "a", "sync_host": ["g"]}]},
             "s.toml: [[nodes]] #1 (a): unknown key 'sync_host' (did you mean 'sync_hosts'?); "
-            "known keys: name, port, sync_hosts, measures",
+            "known keys: name, port, sync_hosts, measures, host, mode, listen, connect",
         ),
         (
             {"cluster": {"name": "c", "base_prot": 7000}},
             "s.toml: [cluster]: unknown key "
             "'base_prot' (did you mean 'base_port'?); known keys: name, host, base_port, lease_ms, "
-            "sync_lease_ms, estimation_backend",
+            "sync_lease_ms, multicast_scouting, estimation_backend",
         ),
         (
             {"supervisor": {"intensty": 3}},
@@ -105,7 +105,7 @@ MEASURE_KEYS = (
         (
             {"wat": {}},
             "s.toml: unknown table 'wat'; known tables: cluster, supervisor, logging, "
-            "world, defaults, nodes, measures",
+            "world, defaults, nodes, routers, measures",
         ),
     ],
 )
