@@ -352,8 +352,10 @@ class TrainTracker:
         if self.locked and self.rung.sonar:  # ranges at var_sonar_track hold theta; fixes do not
             q_th = self.q_theta_track
         if self.rung.omega_only:
-            return np.array([[q_w * dt]])
-        diag = [q_xy, q_xy, q_th * dt, q_w * dt] + ([q_r * dt] if self.rung.radius_state else [])
+            diag = [q_w * dt]
+        else:
+            diag = [q_xy, q_xy, q_th * dt, q_w * dt]
+            diag += [q_r * dt] if self.rung.radius_state else []
         diag += [q_k * dt] * (self.n - len(diag))
         return np.diag(diag)
 
