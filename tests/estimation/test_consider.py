@@ -6,7 +6,7 @@ errors where ignoring the parameter's uncertainty does not."""
 import numpy as np
 import pytest
 
-from hera.estimation import ExtendedKalmanFilter, KalmanFilter, Observations, backend
+from hera.estimation import ExtendedKalmanFilter, KalmanFilter, Observations, backend, record
 from hera.estimation.consider import consider_indices
 
 TOL = {"rtol": 1e-10, "atol": 1e-12}
@@ -100,6 +100,25 @@ def test_a_gated_out_block_leaves_the_state_alone(use_backend):
     obs.add("far", [10.0], H=np.array([[1.0, 1.0, 0.0]]), R=0.01)
     res = kf.update(obs, gate=0.999, consider=[2])
     assert res.rejected and np.array_equal(kf.x, x0) and np.array_equal(kf.P, P0)
+
+
+def test_the_considered_state_is_the_steps_posterior_in_the_history(use_backend):
+    """What a recorded filter (``hera replay --smooth``) keeps of a consider update is the
+    state the filter holds after it: x_post, P_post and the history's step agree, the
+    considered state unchanged (a smoother must not see the unrestored joint update)."""
+    kf = KalmanFilter(np.zeros(2), np.eye(2), F=np.eye(2), Q=0.01 * np.eye(2))
+    hist = record(kf)
+    for z in (1.0, 1.2, 0.9):
+        kf.predict(1.0)
+        obs = Observations()
+        obs.add("z", [z], H=np.array([[1.0, 1.0]]), R=0.1)
+        res = kf.update(obs, consider=[1], details=True)
+        assert hist.log_likelihood[-1] == res.log_likelihood  # counted once
+        assert np.array_equal(kf.x_post, kf.x) and np.array_equal(kf.P_post, kf.P)
+        assert np.array_equal(hist.x_post[-1], kf.x)
+        assert np.array_equal(hist.P_post[-1], kf.P)
+        assert kf.x[1] == 0.0  # considered: never moved
+    assert len(hist) == 4 and np.count_nonzero(hist.log_likelihood) == 3
 
 
 def test_bad_consider_arguments_are_refused_with_what_is_wrong():
