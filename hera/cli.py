@@ -487,6 +487,7 @@ def _replay(args: argparse.Namespace) -> int:
         world,
         progress=_progress,
         smooth=args.smooth,
+        spec=spec if args.spec else None,
     )
     for name, n in counts.items():
         print(f"{name:<20} {n:>7} estimates -> {Path(args.out) / 'measures'}")

@@ -103,6 +103,7 @@ def replay(
     world: Mapping[str, Any] | None = None,
     progress: Callable[[str], None] | None = None,
     smooth: bool = False,
+    spec: ClusterSpec | None = None,
 ) -> dict[str, int]:
     """Run each model (name -> (measure use, model params)) over ``recordings``; write its
     estimates to ``out``; return the number of estimates per model. ``progress`` is told
@@ -116,6 +117,10 @@ def replay(
     a live node: each model starts at the live model's first sample and writes estimates
     only at the live estimates' instants, so the two are compared on the same estimates.
     ``world``: the world table written to ``out/cluster.json`` (default: the recordings').
+    ``spec``: the spec the models come from when it is not the recordings' (``--spec``):
+    written to ``out/cluster.json`` with the recordings' world, so that ``hera eval`` knows
+    the models by the names this spec gives them (not when ``out`` is the recordings'
+    folder: its own spec stays).
 
     ``smooth``: also write each model's RTS-smoothed estimates (see :mod:`hera.smoothing`);
     a model that cannot be smoothed is said so through ``progress`` and left out.
@@ -167,7 +172,7 @@ def replay(
         if smoother is not None:
             rows = smoother.write(out, name, node, model.columns)
             say(f"{name}: {rows} smoothed estimates -> {smoothed_dir(out) / 'measures'}")
-    _write_spec(recordings, out, world)
+    _write_spec(recordings, out, world, spec)
     written = Path(out) / "cluster.json"
     spec_file = written if written.exists() else Path(recordings) / "cluster.json"
     if spec_file.exists() and smooth and smoothed_dir(out).exists():
@@ -187,18 +192,31 @@ def _smoother(model: Any, name: str, say: Callable[[str], None]) -> SmoothedRun 
         return None
 
 
-def _write_spec(recordings: str | Path, out: str | Path, world: Mapping[str, Any] | None) -> None:
+def _write_spec(
+    recordings: str | Path,
+    out: str | Path,
+    world: Mapping[str, Any] | None,
+    spec: ClusterSpec | None = None,
+) -> None:
     """Copy the recordings' ``cluster.json`` (the world, for hera eval) to ``out``, with
-    ``world`` as its world table when given."""
+    ``world`` as its world table when given; with ``spec``, write that spec (the models'
+    names) with the recordings' world (its own when the recordings have none)."""
     src = Path(recordings) / "cluster.json"
     same = Path(out).resolve() == Path(recordings).resolve()
-    if not src.exists() or (same and world is None):
+    recorded = load_spec(src) if src.exists() else None
+    if spec is not None and not same:
+        base = spec
+        if world is None and recorded is not None:
+            world = recorded.world
+    elif recorded is None or (same and world is None):
         return
-    if world is None:
+    else:
+        base = recorded
+    if world is None and base is recorded:
         shutil.copy(src, Path(out) / "cluster.json")
         return
-    spec = load_spec(src)
-    (Path(out) / "cluster.json").write_text(replace(spec, world=dict(world)).to_json())
+    new = replace(base, world=dict(world if world is not None else base.world))
+    (Path(out) / "cluster.json").write_text(new.to_json())
 
 
 def parse_override(text: str) -> tuple[str, str, Any]:

@@ -50,6 +50,35 @@ def test_a_model_fed_by_another_runs_after_it_in_the_same_replay(sim, tmp_path):
     assert json.loads((out / "replay.json").read_text())["recordings"] == str(sim.resolve())
 
 
+def test_spec_given_by_name_or_with_aliases_replays_the_chain(sim, tmp_path):
+    """``--spec`` takes an example's name, and a spec whose measures use the thesis aliases
+    (``use = "e5"``): the models keep the spec's names, bilateration still feeds e5."""
+    text = (ROOT / "deploy" / "train.toml").read_text()
+    assert 'use = "track_bilat"' in text and 'use = "track_radius"' in text
+    aliased = tmp_path / "aliased.toml"
+    aliased.write_text(
+        text.replace('use = "track_bilat"', 'use = "e5"').replace(
+            'use = "track_radius"', 'use = "e8"'
+        )
+    )
+    out = tmp_path / "aliased"
+    proc = hera(
+        "replay", str(sim), "--out", str(out), "--spec", str(aliased), "--models", "e5,e8",
+        tmp=tmp_path,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    res = by_model(evaluate(out))
+    assert set(res) == {("e5", "replay"), ("e8", "replay"), ("bilateration", "replay")}
+    assert res[("e5", "replay")]["pos_rmse_cm"] < 20  # fed by the replayed fixes
+    named = tmp_path / "named"
+    proc = hera(
+        "replay", str(sim), "--out", str(named), "--spec", "train_rough", "--models", "e9",
+        tmp=tmp_path,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert (named / "measures" / "track_mag_replay.csv").exists()
+
+
 def test_models_feeding_each_other_in_a_cycle_are_refused():
     class M:
         def __init__(self, *inputs):
