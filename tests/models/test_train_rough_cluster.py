@@ -8,7 +8,13 @@ within two laps and never stays on a wrong branch for more than a lap; e7-e9 set
 within 0.5 %; e8/e9 radius within the rails with a standard deviation <= 5 mm over the
 second half; no omega once locked under half the truth. A replay of the recordings
 reproduces the live scores (tests/models/test_train_offline.py holds the same over 20
-offline runs)."""
+offline runs).
+
+Marked slow (``pytest -m slow``): the run takes about 62 s, more than the CI budget of
+issue 20's tests allows beside the offline campaigns; CI's real-cluster accuracy test of
+the train is tests/models/test_train_cluster.py, and the rough rig's bounds are held in CI
+by the offline runs (the same model code: ``hera replay --start-like`` reproduces a live
+node's estimates, tested there)."""
 
 from __future__ import annotations
 
@@ -26,6 +32,8 @@ ROOT = Path(__file__).resolve().parents[2]
 NODES = ("computer", "nav_1")
 RUNGS = ("track_bilat", "track_sonar", "track_gyro", "track_radius", "track_mag")
 OPTIONS = EvalOptions(settle=30.0)
+
+pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
