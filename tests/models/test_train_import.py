@@ -94,6 +94,28 @@ def test_import_converts_the_original_conventions(erlang_logs, tmp_path):
     assert beams["sonar_1"] == pytest.approx([0.3, 1.5])  # towards the track's centre
 
 
+def test_g_z_already_in_rad_s_is_left_as_it_is(erlang_logs, tmp_path):
+    """Newer logs give g_z in rad/s: not converted (the deg/s detection must not fire)."""
+    src, sim = erlang_logs
+    newer = tmp_path / "newer"
+    newer.mkdir()
+    for p in src.glob("*.csv"):
+        (newer / p.name).write_text(p.read_text())
+    rows = [line.split(",") for line in (src / "nav.csv").read_text().splitlines()]
+    (newer / "nav.csv").write_text(
+        "".join(f"{q},{t},{a},{math.radians(float(g))!r}\n" for q, t, a, g in rows)
+    )
+    out = tmp_path / "run"
+    proc = hera("import", "erlang-hera", str(newer), str(out), tmp=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "deg/s" not in proc.stdout
+    ours = {s.seq: s for s in read_recordings(sim, ["nav"], known=["nav", "mag", "sonar"])}
+    got = read_recordings(out, ["nav"], known=["nav", "mag", "sonar"])
+    assert len(got) == len(ours)
+    for s in got:  # omega = -g_z, in rad/s as logged
+        assert s.values == pytest.approx(ours[s.seq].values, rel=1e-9, abs=1e-12)
+
+
 def test_replay_and_eval_of_an_import_score_by_lap_timing_beside_the_original(
     erlang_logs, tmp_path
 ):
