@@ -348,6 +348,8 @@ class TrainTracker:
         return F
 
     def _Q(self, dt: float) -> np.ndarray:
+        """Process noise over dt s, diagonal: the output states' (x, y per step; theta, w,
+        r per second), then q_k per second for every hidden state (k, c, b)."""
         q_th, q_w, q_r, q_xy, q_k = self.q
         if self.locked and self.rung.sonar:  # ranges at var_sonar_track hold theta; fixes do not
             q_th = self.q_theta_track
