@@ -48,6 +48,10 @@ def test_a_model_fed_by_another_runs_after_it_in_the_same_replay(sim, tmp_path):
     # e5 localised the train from the replayed fixes (without them: ~80 cm off)
     assert res[("track_bilat", "replay")]["pos_rmse_cm"] < 20
     assert json.loads((out / "replay.json").read_text())["recordings"] == str(sim.resolve())
+    # the models' diagnostic counters beside their estimates: e5 seeded theta from a fix
+    counters = json.loads((out / "measures" / "track_bilat_replay.counters.json").read_text())
+    assert counters["seeds"] >= 1 and counters["late"] == 0, counters
+    assert {"rejected", "unlocks", "off_track", "direction_fixes"} <= set(counters)
 
 
 def test_spec_given_by_name_or_with_aliases_replays_the_chain(sim, tmp_path):
