@@ -9,9 +9,10 @@ import logging
 import sys
 import time
 
+from hera import tools
 from hera.client import ClusterClient, find_run_dir, pid_alive
 
-BENCHES = ("bus", "kalman", "sync")
+BENCHES = ("bus", "kalman", "sync", "scale", "console", "tilt")
 
 
 HELP_EXAMPLES = {
@@ -29,6 +30,7 @@ HELP_EXAMPLES = {
     "eval": "hera eval hera-run/train",
     "import": "hera import erlang-hera logs/2021-05 imported",
     "bench": "hera bench kalman --quick",
+    "certs": "hera certs deploy/two_hosts.toml --out certs",
     "start": "start with:\n  hera up train            a cluster, its live view\n"
     "  hera eval hera-run/train score the run",
 }
@@ -72,6 +74,17 @@ def _parser() -> argparse.ArgumentParser:
         "--only",
         help="comma-separated nodes and routers to run on this host (default: all of them)",
     )
+    cert_help = "folder made by 'hera certs' (its certificates, or its cluster secret)"
+    up.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
+    up.add_argument(
+        "--web",
+        nargs="?",
+        type=int,
+        const=8765,
+        metavar="PORT",
+        help="serve the live web view on 127.0.0.1:PORT (default 8765; 0: any free port)",
+    )
+    up.add_argument("--mcap", metavar="OUT", help="record every sample live to an MCAP file")
 
     node = _command(
         sub,
@@ -85,6 +98,7 @@ def _parser() -> argparse.ArgumentParser:
     node.add_argument("--state-dir", help="where the node persists its args (calibrations)")
     node.add_argument("--parent-pid", type=int, help="stop when this process is gone")
     node.add_argument("--log-level", default="INFO")
+    node.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
 
     rt = _command(
         sub,
@@ -96,6 +110,18 @@ def _parser() -> argparse.ArgumentParser:
     rt.add_argument("--name", required=True, help="name of the router to run")
     rt.add_argument("--parent-pid", type=int, help="stop when this process is gone")
     rt.add_argument("--log-level", default="INFO")
+    rt.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
+
+    ce = _command(
+        sub,
+        "certs",
+        "make a cluster CA, a certificate per node, router and operator, and the secret",
+        HELP_EXAMPLES["certs"],
+    )
+    ce.add_argument(
+        "spec", help="cluster spec (its nodes' and routers' hosts name the certificates)"
+    )
+    ce.add_argument("--out", required=True, metavar="DIR", help="folder to write them to")
 
     st = _command(
         sub,
@@ -119,6 +145,12 @@ def _parser() -> argparse.ArgumentParser:
             metavar="ENDPOINT",
             help="reach the cluster through this node or router (e.g. tcp/10.0.0.2:7447), "
             "from any host: no run directory needed (repeatable)",
+        )
+        s.add_argument(
+            "--cert",
+            metavar="DIR",
+            help="with --connect: the operator's credentials, a folder made by 'hera certs' "
+            "(default: those of the cluster run from this host)",
         )
 
     ms = _command(
@@ -207,6 +239,8 @@ def _parser() -> argparse.ArgumentParser:
     im.add_argument("src", help="folder of the logs")
     im.add_argument("out", help="the run directory to write (new or empty)")
 
+    tools.add_parsers(sub, _command)
+
     b = _command(sub, "bench", "run a benchmark: " + ", ".join(BENCHES), HELP_EXAMPLES["bench"])
     b.add_argument("name", choices=BENCHES)
     b.add_argument("rest", nargs=argparse.REMAINDER, help="options of that benchmark")
@@ -230,8 +264,9 @@ def _dispatch(args: argparse.Namespace) -> int:
         from hera.node import run_node
         from hera.preflight import check_spec
 
-        spec = check_spec(_load(args.spec))
+        spec = check_spec(_load(args.spec, args.cert))
         spec.node(args.node)  # an unknown node is a bad command line, before any logging
+        spec = _lone_secret(spec, args.run_dir)
         logging.basicConfig(
             level=args.log_level.upper(),
             format=f"%(asctime)s {args.node} %(name)s %(levelname)s %(message)s",
@@ -250,18 +285,25 @@ def _dispatch(args: argparse.Namespace) -> int:
             interval=args.interval,
             overwrite=args.overwrite,
             only=only,
+            cert=args.cert,
+            web=args.web,
+            mcap=args.mcap,
         )
         return launcher.run()
     if args.cmd == "router":
         from hera.router import run_router
 
-        spec = _load(args.spec)
+        spec = _load(args.spec, args.cert)
         spec.router(args.name)
         logging.basicConfig(
             level=args.log_level.upper(),
             format=f"%(asctime)s {args.name} %(name)s %(levelname)s %(message)s",
         )
         return run_router(spec, args.name, args.parent_pid)
+    if args.cmd == "certs":
+        return _certs(args)
+    if args.cmd in tools.COMMANDS:
+        return tools.run(args)
     if args.cmd == "status":
         return _status(args)
     if args.cmd == "down":
@@ -297,17 +339,58 @@ def _dispatch(args: argparse.Namespace) -> int:
     raise AssertionError(args.cmd)
 
 
-def _progress(text: str) -> None:
-    """A progress line of a long command (stderr, so that stdout stays the result)."""
-    print(f"  {text} ...", file=sys.stderr, flush=True)
+def _load(spec_arg: str, cert: str | None = None):
+    """The spec a command line names (a file, or an example's name), with ``--cert``."""
+    from pathlib import Path
 
-
-def _load(spec_arg: str):
-    """The spec a command line names (a file, or an example's name)."""
     from hera.examples import resolve_spec
     from hera.spec import load_spec
 
-    return load_spec(resolve_spec(spec_arg))
+    spec = load_spec(resolve_spec(spec_arg))
+    return spec if cert is None else spec.with_security(certs=str(Path(cert).resolve()))
+
+
+def _lone_secret(spec, run_dir: str | None):
+    """A node run by hand with authentication on and no credentials (no ``--cert``, no
+    ``[security] certs``, not a ``hera up`` cluster.json) makes its own secret: in its run
+    directory, else in a private temporary folder removed at exit. It can join no other
+    node, which is what it says in its log."""
+    import atexit
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    from hera.security.secret import SECRET_FILE, make_secret
+
+    if not spec.auth or spec.tls or spec.certs or spec.secret:
+        return spec
+    if run_dir is not None:
+        folder = Path(run_dir)
+    else:
+        folder = Path(tempfile.mkdtemp(prefix="hera-node-"))
+        atexit.register(shutil.rmtree, folder, True)
+    path = folder / SECRET_FILE
+    if not path.exists():
+        make_secret(path)
+    logging.getLogger("hera.node").warning(
+        "no cluster credentials given: this node made its own secret (%s) and can join no "
+        "other node; give --cert DIR (made by 'hera certs') to join a cluster",
+        path,
+    )
+    return spec.with_security(secret=str(path.resolve()))
+
+
+def _certs(args: argparse.Namespace) -> int:
+    from hera.security.certs import make_certs
+    from hera.security.credentials import cert_hosts
+
+    spec = _load(args.spec)
+    written = make_certs(args.out, spec.name, cert_hosts(spec))
+    print(f"cluster {spec.name}: CA {args.out}/ca.pem (keep ca.key off the cluster's hosts)")
+    for path in written:
+        print(f"  {path}")
+    print(f"  {args.out}/secret (the cluster secret, for links without TLS)")
+    return 0
 
 
 def _measures(args: argparse.Namespace) -> int:
@@ -345,8 +428,29 @@ def _client(args: argparse.Namespace) -> ClusterClient:
     """The cluster a tool command talks to: through ``--connect`` endpoints (any host), or
     the one registered on this host (``--run-dir``, ``--cluster``, or the only one)."""
     if args.connect:
-        return ClusterClient.connect(args.connect, args.cluster)
+        return ClusterClient.connect(
+            args.connect, args.cluster, credentials=_tool_credentials(args)
+        )
     return ClusterClient.from_run_dir(find_run_dir(args.run_dir, args.cluster))
+
+
+def _tool_credentials(args: argparse.Namespace):
+    """The operator's credentials of a tool run with ``--connect``: from ``--cert DIR``, else
+    those of the cluster this host runs (``--run-dir``, ``--cluster`` or the only one)."""
+    from hera.security.access import OPERATOR
+    from hera.security.credentials import for_operator, for_spec
+    from hera.spec import load_spec
+
+    if args.cert:
+        return for_operator(args.cert, args.connect)
+    try:
+        run_dir = find_run_dir(args.run_dir, args.cluster)
+    except LookupError:
+        raise LookupError(
+            "--connect needs the operator's credentials: give --cert DIR (a folder made by "
+            "'hera certs'), or run it on a host that runs the cluster"
+        ) from None
+    return for_spec(load_spec(run_dir / "cluster.json"), OPERATOR)
 
 
 def _status(args: argparse.Namespace) -> int:
@@ -404,24 +508,26 @@ def _down(args: argparse.Namespace) -> int:
 
 
 def _down_over_the_bus(args: argparse.Namespace) -> int:
-    """Stop a cluster from any host: every launcher stops what it runs, every node that no
-    launcher runs (started by hand) gets ``shutdown``; wait until no node answers."""
+    """Stop a cluster from any host: the nodes no launcher runs (started by hand) get
+    ``shutdown``, then every launcher on the bus is asked at once to stop what it runs
+    (the ones that run routers last: the others' requests travel through them)."""
     with _client(args) as client:
-        launched = client.launched()
-        from hera.bus import query_all
-
-        for lid in client.launchers():
-            list(query_all(client.session, client.keys.launcher(lid, "down"), 2.0, complete=False))
-        for node in sorted(set(client.status(timeout=1.0)) - set(launched)):
+        launchers = client.launchers(timeout=2.0)
+        launched = {n for st in launchers.values() for n in st.get("nodes", {})}
+        for node in sorted(set(client.status(timeout=1.0)) - launched):
             client.query(node, "shutdown", timeout=1.0)
-        deadline = time.monotonic() + 20
-        while time.monotonic() < deadline:
-            if not client.status(timeout=0.5) and not client.launchers(0.5):
-                print(f"cluster {client.cluster} stopped")
-                return 0
-            time.sleep(0.2)
-    print(f"hera down: cluster {client.cluster} keeps answering after 20 s", file=sys.stderr)
-    return 1
+        order = sorted(launchers, key=lambda lid: bool(launchers[lid].get("routers")))
+        pending = [
+            (lid, client.session.get(client.keys.launcher(lid, "down"), timeout=3.0))
+            for lid in order
+        ]  # every request is on its way before the first launcher stops its routers
+        stopping = [lid for lid, replies in pending if any(r.ok for r in replies)]
+    missing = sorted(set(launchers) - set(stopping))
+    if missing:
+        print(f"hera down: launchers {missing} did not answer", file=sys.stderr)
+        return 1
+    print(f"cluster {client.cluster}: {len(stopping)} launchers stopping ({', '.join(stopping)})")
+    return 0
 
 
 def _inject(args: argparse.Namespace) -> int:
@@ -478,17 +584,21 @@ def _replay(args: argparse.Namespace) -> int:
         like = live_schedule(args.recordings, args.start_like)
         if not like:
             raise ValueError(f"no live estimates of node {args.start_like!r} in the recordings")
-    counts = replay(
-        args.recordings,
-        args.out,
-        chosen,
-        args.node,
-        like,
-        world,
-        progress=_progress,
-        smooth=args.smooth,
-        spec=spec if args.spec else None,
-    )
+    from hera.progress import Progress
+
+    with Progress("replay") as progress:
+        counts = replay(
+            args.recordings,
+            args.out,
+            chosen,
+            args.node,
+            like,
+            progress,
+            smooth=args.smooth,
+            say=progress.say,
+            world=world,
+            spec=spec if args.spec else None,
+        )
     for name, n in counts.items():
         print(f"{name:<20} {n:>7} estimates -> {Path(args.out) / 'measures'}")
     return 0
@@ -503,8 +613,10 @@ def _eval(args: argparse.Namespace) -> int:
 
     options = EvalOptions(after=args.after, settle=args.settle)
     index = AppIndex()
-    _progress(f"scoring the model outputs of {args.run_dir}")
-    results = evaluate(args.run_dir, options, index, args.reference)
+    from hera.progress import Progress
+
+    with Progress("eval") as progress:
+        results = evaluate(args.run_dir, options, index, args.reference, progress)
     if not results:
         raise ValueError(f"{args.run_dir}: no model outputs to score (no fusion model logged)")
     if args.json:
@@ -515,7 +627,6 @@ def _eval(args: argparse.Namespace) -> int:
         try:
             out = args.plots or Path(args.run_dir) / "eval"
             nodes = args.node.split(",") if args.node else None
-            _progress(f"drawing the plots into {out}")
             files = plot(args.run_dir, out, nodes, options, index, args.reference)
             if not args.json:
                 print("plots: " + (", ".join(str(f) for f in files) or "none"))

@@ -12,11 +12,14 @@ import contextlib
 import json
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from hera.bus import BusConfig, open_session, query_all
 from hera.keys import Keys
+from hera.security.access import OPERATOR
+from hera.security.credentials import Credentials, secured
 from hera.spec import ClusterSpec, load_spec
 
 
@@ -128,7 +131,7 @@ class ClusterClient:
                     connect=tool_endpoints(spec),
                     lease_ms=spec.lease_ms,
                 )
-            session = _open_retrying(cfg, retry_s)
+            session = _open_retrying(secured(spec, OPERATOR, cfg), retry_s)
         self.session = session
 
     @classmethod
@@ -137,12 +140,27 @@ class ClusterClient:
 
     @classmethod
     def connect(
-        cls, endpoints: list[str], cluster: str | None = None, timeout: float = 2.0
+        cls,
+        endpoints: list[str],
+        cluster: str | None = None,
+        timeout: float = 2.0,
+        credentials: Credentials | None = None,
     ) -> ClusterClient:
-        """A client session to one of ``endpoints`` (a node or router of the cluster); the
-        cluster is found on the bus when ``cluster`` is not given and only one answers.
-        LookupError when nothing answers or several clusters do."""
-        session = open_session(BusConfig(listen=(), connect=tuple(endpoints), mode="client"))
+        """A client session to one of ``endpoints`` (a node or router of the cluster),
+        authenticated with ``credentials`` (the operator's, see
+        :func:`hera.security.credentials.for_operator`); the cluster is found on the bus when
+        ``cluster`` is not given and only one answers. LookupError when nothing answers
+        (wrong credentials included) or several clusters do."""
+        cfg = BusConfig(listen=(), connect=tuple(endpoints), mode="client")
+        if credentials is not None:
+            cfg = credentials.secure(cfg)
+        try:
+            session = open_session(cfg)
+        except Exception as e:
+            raise LookupError(
+                f"cannot join the bus at {', '.join(endpoints)}: nothing listens there, or it "
+                f"refused these credentials ({str(e).split(' at ')[0]})"
+            ) from None
         try:
             if cluster is None:
                 found = set()
@@ -195,6 +213,19 @@ class ClusterClient:
             with contextlib.suppress(ValueError):
                 out[str(sample.key_expr).split("/")[-2]] = json.loads(sample.payload.to_bytes())
         return out
+
+    def subscribe(self, selector: str, callback: Callable[[Any], None]) -> Any:
+        """Subscribe to key expression ``selector`` of the cluster's bus (e.g.
+        ``self.keys.data("*", "*")``); ``callback(sample)`` runs on Zenoh's threads. Returns
+        the subscriber (``undeclare()`` it, or close the client)."""
+        return self.session.declare_subscriber(selector, callback)
+
+    def subscribe_alive(self, callback: Callable[[Any], None]) -> Any:
+        """Follow the nodes' liveliness tokens (``alive/**``, with the ones already up):
+        ``callback(sample)`` with a PUT when a node appears, a DELETE when it is gone."""
+        return self.session.liveliness().declare_subscriber(
+            self.keys.alive_all, callback, history=True
+        )
 
     def status(self, timeout: float = 1.0) -> dict[str, dict[str, Any]]:
         """Every reachable node's status, by node name."""

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -131,16 +131,21 @@ def evaluate(
     options: EvalOptions | None = None,
     index: AppIndex | None = None,
     reference: str | Path | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> list[Scored]:
     """Every model output of the run, scored by its application, in the applications'
     order (a ladder's rungs in order). ``reference``: a recording to score against when
-    the world has no truth (see the module docstring)."""
+    the world has no truth (see the module docstring); ``progress(done, total)`` after
+    each output."""
     options = options or EvalOptions()
     spec = run_spec(run_dir)
     index = index or AppIndex()
     refs: dict[str, Reference | None] = {}
     out = []
-    for s in load_outputs(run_dir, spec):
+    outputs = load_outputs(run_dir, spec)
+    for i, s in enumerate(outputs):
+        if progress is not None:
+            progress(i, len(outputs))
         app = index.app_of(s.measure)
         scores: dict[str, float | None] = {}
         source = None
@@ -151,6 +156,8 @@ def evaluate(
             scores = dict(app.score(s, ref.truth if ref else None, options))
             source = ref.source if ref else None
         out.append(Scored(s, app, index.label(s.name, s.measure), scores, source))
+    if progress is not None:
+        progress(len(outputs), len(outputs))
     out.sort(key=lambda r: (*index.rank(r.series.measure), r.series.name, r.series.node))
     return out
 

@@ -16,6 +16,8 @@
   launcher's pid, so they stop even if the launcher is SIGKILLed.
 - SIGINT, SIGTERM, ``hera down`` or the end of ``--duration`` stop everything: SIGTERM to
   each node, SIGKILL after the shutdown timeout, exit 0, nothing left behind.
+- ``web``: serve the live web view (:mod:`hera.console`) on that loopback port while the
+  cluster runs; ``mcap``: record every sample to that MCAP file (:mod:`hera.export.mcap`).
 """
 
 from __future__ import annotations
@@ -45,6 +47,9 @@ from hera.panel import estimates_panels
 from hera.plugins import AppIndex
 from hera.preflight import check_spec
 from hera.rundirs import new_run_dir, prepare_run_dir, state_dir
+from hera.security.access import OPERATOR
+from hera.security.credentials import for_spec
+from hera.security.secret import SECRET_FILE, make_secret
 from hera.spec import ClusterSpec, SpecError, load_spec
 from hera.statusview import render_view
 
@@ -71,6 +76,29 @@ def busy_ports(spec: ClusterSpec, local: set[str] | None = None) -> list[str]:
                     f"free ({e.strerror}): change [cluster] base_port or its port"
                 )
     return out
+
+
+def web_port_problems(port: int, host: str = "127.0.0.1") -> list[str]:
+    """The problem with serving the web view on ``host:port``, if any."""
+    with socket.socket() as s:
+        try:
+            s.bind((host, port))
+        except OSError as e:
+            return [f"--web: port {port} on {host} is not free ({e.strerror}): pick another"]
+    return []
+
+
+def console_dependencies(web: bool, mcap: bool) -> None:
+    """ImportError naming the extra to install when the web view or MCAP recording is asked
+    for without its packages (checked before any node starts)."""
+    import importlib.util
+
+    missing = [m for m, wanted in (("aiohttp", web), ("mcap", mcap)) if wanted]
+    missing = [m for m in missing if importlib.util.find_spec(m) is None]
+    if missing:
+        raise ImportError(
+            f"{' and '.join(missing)} not installed: pip install 'hera-fusion[console]'"
+        )
 
 
 def shown_measures(spec: ClusterSpec, index: AppIndex) -> dict[str, type]:
@@ -155,8 +183,19 @@ class Launcher:
         interval: float = 1.0,
         overwrite: bool = False,
         only: Sequence[str] | None = None,
+        cert: str | Path | None = None,
+        web: int | None = None,
+        mcap: str | Path | None = None,
     ) -> None:
         spec = check_spec(load_spec(spec_path))
+        if cert is not None:
+            spec = spec.with_security(certs=str(Path(cert).resolve()))
+        if spec.spans_hosts() and (spec.auth or spec.tls) and not spec.certs:
+            raise SpecError(
+                f"{spec.source}: [security]: the spec spans several hosts, which must share "
+                "their credentials: make them with 'hera certs SPEC --out DIR', copy DIR to "
+                "every host and give --cert DIR (or [security] certs = DIR)"
+            )
         names = [n.name for n in spec.nodes] + [r.name for r in spec.routers]
         if only is not None:
             unknown = [x for x in only if x not in names]
@@ -167,11 +206,15 @@ class Launcher:
                 )
         self.local = set(names if only is None else only)
         busy = busy_ports(spec, self.local)
+        if web:
+            busy += web_port_problems(web)
+        if web is not None or mcap is not None:
+            console_dependencies(web is not None, mcap is not None)
         if busy:
             raise SpecError(busy)
-        parts = [*spec.nodes, *spec.routers]
-        if spec.base_port == 0 and not all(p.port or p.listen for p in parts):
-            spec = spec.with_ports(free_ports(spec.host, len(parts)))
+        unset = [p for p in (*spec.nodes, *spec.routers) if not (p.port or p.listen)]
+        if spec.base_port == 0 and unset:
+            spec = spec.with_ports(free_ports(spec.host, len(unset)))
         if "epoch" not in spec.world:
             spec = spec.with_world(epoch=time.time())
         self.spec: ClusterSpec = spec
@@ -183,6 +226,11 @@ class Launcher:
         else:
             self.run_dir = prepare_run_dir(Path(run_dir), overwrite)
         self.state_dir = state_dir(spec.name, self.run_dir, run_dir is not None)
+        if spec.auth and not spec.tls and not spec.certs:
+            spec = spec.with_security(secret=str(make_secret(self.run_dir / SECRET_FILE)))
+        self.spec = spec
+        for name in self.local | {OPERATOR}:
+            for_spec(spec, name)  # CredentialsError now rather than in every node
         self.duration = duration
         self.out = out or sys.stdout
         self.interval = interval
@@ -193,7 +241,9 @@ class Launcher:
         self.index = AppIndex()
         self.stopping = threading.Event()
         self.failed: str | None = None
+        self._written: tuple[list, float] = ([], 0.0)
         self._logs: dict[str, IO[bytes]] = {}
+        self.web, self.mcap = web, mcap
         self.registry_file = registry_dir() / f"{spec.name}-{os.getpid()}.json"
 
     # -- process management -------------------------------------------------------------
@@ -310,10 +360,16 @@ class Launcher:
                 reply = {"ok": False, "error": f"unknown launcher verb {verb!r}: status, down"}
             query.reply(Keys(self.spec.name).launcher(self.id, verb), json.dumps(reply))
 
-    def _write_launcher_state(self) -> None:
-        state = self.state()
+    def _write_launcher_state(self, force: bool = False) -> None:
+        """Write ``launcher.json`` when a process changed (pid, state, restarts) or once a
+        second, not at every turn of the loop."""
+        key = [(p.proc.pid if p.proc else None, p.state, p.restarts) for p in self._procs()]
+        now = time.monotonic()
+        if not force and key == self._written[0] and now - self._written[1] < 1.0:
+            return
+        self._written = (key, now)
         tmp = self.run_dir / "launcher.json.tmp"
-        tmp.write_text(json.dumps(state))
+        tmp.write_text(json.dumps(self.state()))
         os.replace(tmp, self.run_dir / "launcher.json")
 
     # -- main loop ----------------------------------------------------------------------
@@ -335,6 +391,7 @@ class Launcher:
         for sig in (signal.SIGINT, signal.SIGTERM):
             handlers[sig] = signal.signal(sig, lambda *_: self.stopping.set())
         client = None
+        extras: list[Any] = []
         try:
             for np in self._procs():
                 self._spawn(np)
@@ -347,6 +404,7 @@ class Launcher:
             client.session.declare_queryable(
                 Keys(self.spec.name).launcher(self.id, "*"), self._on_query, complete=True
             )
+            extras = self._start_extras()
             started = time.monotonic()
             next_view = started + self.interval
             while not self.stopping.is_set():
@@ -363,6 +421,11 @@ class Launcher:
             self._say("stopping")
             return 1 if self.failed else 0
         finally:
+            for extra in reversed(extras):
+                try:
+                    extra.close()
+                except Exception as e:  # closing the view or the recorder must not stop the stop
+                    self._say(f"closing {type(extra).__name__} failed: {e}")
             if client is not None:
                 with contextlib.suppress(Exception):
                     client.close()
@@ -374,6 +437,30 @@ class Launcher:
             for f in self._logs.values():
                 f.close()
             self._say(self._next_steps())
+
+    def _start_extras(self) -> list[Any]:
+        """The web view and the live MCAP recorder, when asked for (closed at the end)."""
+        extras: list[Any] = []
+        if self.mcap is not None:
+            from hera.export.mcap import LiveRecorder
+
+            extras.append(LiveRecorder(self.spec, self.mcap))
+            self._say(f"recording every sample to {self.mcap}")
+        if self.web is not None:
+            from hera.console.server import ConsoleServer
+            from hera.console.state import Console
+
+            console = Console(
+                self.spec,
+                self.run_dir,
+                launcher_state=lambda: {n: p.info() for n, p in self.nodes.items()},
+            )
+            extras.append(console)
+            server = ConsoleServer(console, "127.0.0.1", self.web)
+            url = server.start()
+            extras.append(server)
+            self._say(f"web view on {url}")
+        return extras
 
     def _next_steps(self) -> str:
         """Where the run is and what to run next (printed when the cluster has stopped)."""
@@ -416,33 +503,38 @@ class Launcher:
         self.out.flush()
 
     def _panels(self, client: ClusterClient, status: dict) -> list[Panel]:
-        """The applications' panels, from the store of one node (the logging node, which
-        holds every sample, else the first answering)."""
+        """The applications' panels, from what the nodes' stores hold of the measures shown
+        (the logging node's samples first)."""
         if not self.shown or not status:
             return []
         node = self.spec.log_node if self.spec.log_node in status else sorted(status)[0]
         try:
-            reply = client.query(node, "store", {}, timeout=0.5).get(node, {})
-            samples = prefer_node(reply.get("samples", []), node)
+            request = {"names": sorted(self.shown)}
+            replies = client.query("*", "store", request, timeout=0.5)
+            held = [s for r in replies.values() for s in r.get("samples", [])]
+            samples = prefer_node(held, node)
             return estimates_panels(self.shown, samples, self.spec.world, self.index)
         except Exception as e:  # the view must never take the launcher down
             return [Panel(f"estimates: query failed ({e})", ("",))]
 
     def _stop_all(self) -> None:
-        procs = [p.proc for p in reversed(self._procs()) if p.proc is not None]
-        for p in procs:
-            if p.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    p.send_signal(signal.SIGCONT)
-                    p.terminate()
-        deadline = time.monotonic() + self.spec.shutdown_timeout + 3.0
-        for p in procs:
-            try:
-                p.wait(max(0.05, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        """Stop the nodes (SIGTERM, SIGKILL after the shutdown timeout), then the routers,
+        which carry the others' traffic until then."""
+        for group in (self.nodes.values(), self.routers.values()):
+            procs = [p.proc for p in group if p.proc is not None]
+            for p in procs:
+                if p.poll() is None:
+                    with contextlib.suppress(ProcessLookupError):
+                        p.send_signal(signal.SIGCONT)
+                        p.terminate()
+            deadline = time.monotonic() + self.spec.shutdown_timeout + 3.0
+            for p in procs:
+                try:
+                    p.wait(max(0.05, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()
         for np in self._procs():
             np.state = "stopped"
         with contextlib.suppress(OSError):
-            self._write_launcher_state()
+            self._write_launcher_state(force=True)

@@ -1,7 +1,9 @@
 """A node's status reply (the ``status`` control verb, ``hera status``, the live view).
 
 JSON-able: the node, its measures (state, restarts, rates, jitter, counters), its store,
-rejected inputs, peers and their events, transit times, args, and each service's status.
+rejected inputs, peers and their events, transit times, args, the recent control verbs that
+changed something (faults injected, measures started, args set, code reloaded) and each
+service's status.
 """
 
 from __future__ import annotations
@@ -68,14 +70,22 @@ def node_status(node: Node) -> dict[str, Any]:
             "entries": len(node.store.snapshot()),
             "accepted": node.store.accepted,
             "stale": node.store.stale,
+            "takes": node.data.interest,
+            "refused": dict(node.store.refused),
+            "incarnations": node.store.incarnations,
         },
+        "incarnation": data.incarnation,
         "rejected": dict(data.rejected),
+        "refused_sources": data.refused_sources(),
+        "args_rejected": dict(node.args.rejected) if node.args else {},
         "last_rejection": data.last_rejection,
         "peers": node.peers.names(),
         "peer_events": node.peers.event_log(),
         "transit_ms": data.percentiles(),
         "args": len(node.args.items()) if node.args else 0,
         "log_rows": data.csv.rows if data.csv else 0,
+        "log_files_open": data.csv.open_files if data.csv else 0,
+        "control_events": list(node.control.events),
     }
     for name, service in node.services.items():
         try:

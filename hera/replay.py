@@ -18,7 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from hera.fusion import FusionMeasure, model_counters, spec_models, time_order
+from hera.fusion import FusionMeasure, model_counters, model_outputs, spec_models, time_order
 from hera.plugins import find_measure
 from hera.recordings import SOURCE_FILE, CsvWriter, read_recordings
 from hera.schema import did_you_mean
@@ -100,14 +100,14 @@ def replay(
     models: Mapping[str, tuple[str, Mapping[str, Any]]],
     node: str = "replay",
     like: Mapping[str, tuple[float, set[int]]] | None = None,
-    world: Mapping[str, Any] | None = None,
-    progress: Callable[[str], None] | None = None,
+    progress: Callable[[int, int], None] | None = None,
     smooth: bool = False,
+    say: Callable[[str], None] | None = None,
+    world: Mapping[str, Any] | None = None,
     spec: ClusterSpec | None = None,
 ) -> dict[str, int]:
     """Run each model (name -> (measure use, model params)) over ``recordings``; write its
-    estimates to ``out``; return the number of estimates per model. ``progress`` is told
-    what is being done as it goes (one line each).
+    estimates to ``out``; return the number of estimates per model.
 
     Chained models run in dependency order in this one call: a model whose inputs include
     another replayed model's output takes that model's replayed estimates (published by
@@ -116,14 +116,16 @@ def replay(
     ``like`` (model name -> (start, instants), see :func:`live_schedule`) makes a replay of
     a live node: each model starts at the live model's first sample and writes estimates
     only at the live estimates' instants, so the two are compared on the same estimates.
+    ``progress(done, total)`` is told the samples fed so far (all models together).
+
+    ``smooth``: also write each model's RTS-smoothed estimates (see :mod:`hera.smoothing`);
+    a model that cannot be smoothed is said so through ``say`` (one line) and left out.
+
     ``world``: the world table written to ``out/cluster.json`` (default: the recordings').
     ``spec``: the spec the models come from when it is not the recordings' (``--spec``):
     written to ``out/cluster.json`` with the recordings' world, so that ``hera eval`` knows
     the models by the names this spec gives them (not when ``out`` is the recordings'
     folder: its own spec stays).
-
-    ``smooth``: also write each model's RTS-smoothed estimates (see :mod:`hera.smoothing`);
-    a model that cannot be smoothed is said so through ``progress`` and left out.
     """
     instances = {}
     for name, (use, params) in models.items():
@@ -131,17 +133,16 @@ def replay(
         if not issubclass(cls, FusionMeasure):
             raise ValueError(f"{use!r} is not a fusion model: it cannot be replayed")
         instances[name] = cls.make_model(params, f"model {name!r} ({use})")
-    say = progress or (lambda _text: None)
+    say = say or (lambda _text: None)
     order = dependency_order(instances)
     inputs = {n for m in instances.values() for n in m.inputs}
     recorded = inputs - set(instances)
     known = inputs | set(instances)
-    say(f"reading the recordings of {', '.join(sorted(recorded))} in {recordings}")
     samples = read_recordings(recordings, recorded, known=known) if recorded else []
-    say(f"{len(samples)} samples; running {len(instances)} models")
     produced: dict[str, list[Sample]] = {}
     counts = {}
-    for i, name in enumerate(order, start=1):
+    total, fed = len(samples) * len(instances), 0
+    for name in order:
         model = instances[name]
         writer = CsvWriter(out, name, node, model.columns)
         t_start, instants = (like or {}).get(name, (float("-inf"), None))
@@ -153,9 +154,16 @@ def replay(
         outputs: list[Sample] = []
         smoother = _smoother(model, name, say) if smooth else None
         try:
-            for s in feed:
-                if s.t >= t_start and s.name in model.inputs and model.process(s):
-                    t, values = model.estimate()
+            for i, s in enumerate(feed):
+                if progress is not None and i % 5000 == 0:
+                    progress(fed + i, total)
+                if s.t < t_start or s.name not in model.inputs:
+                    continue
+                changed = model.process(s)
+                rows = model_outputs(model)
+                if rows is None:
+                    rows = [model.estimate()] if changed else []
+                for t, values in rows:
                     if instants is None or round(t * 1e6) in instants:
                         writer.write(t, values)
                         outputs.append(
@@ -165,16 +173,18 @@ def replay(
                             smoother.mark(t)
         finally:
             writer.close()
+        fed += len(samples)
         produced[name] = outputs
         counts[name] = writer.seq
         write_counters(out, name, node, model_counters(model))
-        say(f"[{i}/{len(instances)}] {name}: {writer.seq} estimates")
         if smoother is not None:
-            rows = smoother.write(out, name, node, model.columns)
-            say(f"{name}: {rows} smoothed estimates -> {smoothed_dir(out) / 'measures'}")
+            written = smoother.write(out, name, node, model.columns)
+            say(f"{name}: {written} smoothed estimates -> {smoothed_dir(out) / 'measures'}")
+    if progress is not None:
+        progress(total, total)
     _write_spec(recordings, out, world, spec)
-    written = Path(out) / "cluster.json"
-    spec_file = written if written.exists() else Path(recordings) / "cluster.json"
+    written_spec = Path(out) / "cluster.json"
+    spec_file = written_spec if written_spec.exists() else Path(recordings) / "cluster.json"
     if spec_file.exists() and smooth and smoothed_dir(out).exists():
         shutil.copy(spec_file, smoothed_dir(out) / "cluster.json")  # the world, for hera eval
     if Path(out).resolve() != Path(recordings).resolve():

@@ -17,6 +17,7 @@ import zenoh
 
 from hera.bus import open_session
 from hera.node import EXIT_CONFIG, FATAL
+from hera.security.credentials import CredentialsError, secured
 from hera.spec import ClusterSpec
 from hera.topology import bus_config
 
@@ -26,7 +27,11 @@ log = logging.getLogger("hera.router")
 def run_router(spec: ClusterSpec, name: str, parent_pid: int | None = None) -> int:
     """Run router ``name`` until SIGTERM/SIGINT or the death of ``parent_pid``."""
     spec.router(name)  # SpecError naming the known routers
-    cfg = bus_config(spec, name)
+    try:
+        cfg = secured(spec, name, bus_config(spec, name))
+    except CredentialsError as e:
+        log.error("%s%s", FATAL, e)
+        return EXIT_CONFIG
     halt = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: halt.set())

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from hera.bus import DEFAULT_LEASE_MS
-from hera.keys import check_chunk
+from hera.keys import MAX_CHUNK, check_chunk
 from hera.measure import MEASURE_TABLE, MeasureSpec, default_name
 from hera.schema import (
     ANY,
@@ -62,7 +62,8 @@ def _chunk(what: str):
             check_chunk(value, what)
         except ValueError:
             raise ValueError(
-                "must use only letters, digits, '_', '.' and '-' (no '/', '*', '$')"
+                f"must use only letters, digits, '_', '.' and '-' (no '/', '*', '$'), at most "
+                f"{MAX_CHUNK} of them"
             ) from None
 
     return check
@@ -121,6 +122,12 @@ class NodeSpec:
         list_of(ENDPOINT, "a list of endpoints"),
         "endpoints it connects to (default: the routers of its host, else every router, "
         "else every other node)",
+    )
+    store: str = setting(
+        "interest",
+        choice("interest", "all"),
+        "what its store takes: `interest` (the names its measures read) or `all` (every "
+        "sample of the cluster, for tools; the `[logging]` node takes what it logs too)",
     )
 
 
@@ -210,7 +217,8 @@ class ClusterSpec:
     log_node: str | None = setting(
         None,
         NAME,
-        "this node writes `<run-dir>/measures/<name>_<node>.csv` for every sender",
+        "this node writes `<run-dir>/measures/<name>_<node>.csv` for every source the spec "
+        "declares",
         key="node",
         table="logging",
     )
@@ -221,6 +229,53 @@ class ClusterSpec:
         key="names",
         table="logging",
     )
+    auth: bool = setting(
+        True,
+        BOOL,
+        "every link authenticates (user/password from the cluster secret); off only for a "
+        "closed lab",
+        table="security",
+    )
+    tls: bool = setting(
+        False,
+        BOOL,
+        "every link is mutual TLS with the certificates of `certs` (plain TCP refused)",
+        table="security",
+    )
+    certs: str | None = setting(
+        None,
+        STR,
+        "folder made by `hera certs`: the certificates (with `tls`) and the cluster secret "
+        "shared by every host (default: `hera up` makes a secret in the run directory)",
+        table="security",
+    )
+    access_control: bool = setting(
+        True,
+        BOOL,
+        "with `tls`: Zenoh access control on every node and router (a node writes only its "
+        "own keys, only the operator uses the control plane)",
+        table="security",
+    )
+    max_clock_skew_ms: int = setting(
+        1000,
+        number(1, 3_600_000, integer=True),
+        "an args write stamped further ahead of the receiver's clock is refused",
+        table="security",
+    )
+    max_names_per_node: int = setting(
+        256,
+        number(1, 100_000, integer=True),
+        "names a store and the CSV logger take from one node; more are refused",
+        table="security",
+    )
+    max_open_logs: int = setting(
+        64,
+        number(1, 10_000, integer=True),
+        "CSV files the logging node keeps open at once (the least recently used is closed)",
+        table="security",
+    )
+    secret: str | None = None
+    """The cluster secret's file (resolved by ``hera up``: ``certs``' or the run's own)."""
     world: dict[str, Any] = field(default_factory=dict)
     source: str = ""
 
@@ -269,6 +324,14 @@ class ClusterSpec:
         routers = tuple(replace(r, port=p) for r, p in zip(self.routers, ports[n:], strict=True))
         return replace(self, nodes=nodes, routers=routers)
 
+    def with_security(self, **values: Any) -> ClusterSpec:
+        """A copy with the given security settings (``certs``, ``secret``, ``tls`` ...)."""
+        return replace(self, **values)
+
+    def spans_hosts(self) -> bool:
+        """Whether its nodes and routers run on more than one host."""
+        return len({p.host or self.host for p in (*self.nodes, *self.routers)}) > 1
+
     def with_world(self, **values: Any) -> ClusterSpec:
         """A copy with ``values`` added to the world table."""
         return replace(self, world={**self.world, **values})
@@ -281,6 +344,7 @@ class ClusterSpec:
 CLUSTER_TABLE = table_of(ClusterSpec, "[cluster]", table="cluster")
 SUPERVISOR_TABLE = table_of(ClusterSpec, "[supervisor]", table="supervisor")
 LOGGING_TABLE = table_of(ClusterSpec, "[logging]", table="logging")
+SECURITY_TABLE = table_of(ClusterSpec, "[security]", table="security")
 NODE_TABLE = table_of(NodeSpec, "[[nodes]]")
 ROUTER_TABLE = table_of(RouterSpec, "[[routers]]")
 DEFAULTS_TABLE = MEASURE_TABLE.without("use", "name")
@@ -305,6 +369,7 @@ TOP_LEVEL = (
     "cluster",
     "supervisor",
     "logging",
+    "security",
     "world",
     "defaults",
     "nodes",
@@ -320,6 +385,7 @@ def reference() -> str:
         ("`[cluster]`", CLUSTER_TABLE),
         ("`[supervisor]`", SUPERVISOR_TABLE),
         ("`[logging]`", LOGGING_TABLE),
+        ("`[security]`", SECURITY_TABLE),
         ("`[[nodes]]`", NODE_TABLE),
         ("`[[routers]]`", ROUTER_TABLE),
         ("`[[nodes.measures]]`, `[[measures]]` (and `[defaults]`, all but use and name)", None),
@@ -392,6 +458,9 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
     cluster = CLUSTER_TABLE.parse(data.get("cluster"), where("[cluster]"), problems)
     sup = SUPERVISOR_TABLE.parse(data.get("supervisor"), where("[supervisor]"), problems)
     logging_t = LOGGING_TABLE.parse(data.get("logging"), where("[logging]"), problems)
+    security = SECURITY_TABLE.parse(data.get("security"), where("[security]"), problems)
+    if security.get("certs"):
+        security["certs"] = str((Path(source).parent / security["certs"]).resolve())
     defaults = DEFAULTS_TABLE.parse(
         data.get("defaults"), where("[defaults]"), problems, defaults=False
     )
@@ -538,4 +607,5 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
         **cluster,
         **sup,
         **logging_t,
+        **security,
     )

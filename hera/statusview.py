@@ -81,7 +81,8 @@ def sync_rows(status: Mapping[str, Mapping[str, Any]]) -> list[str]:
 
 
 def problem_rows(status: Mapping[str, Mapping[str, Any]]) -> list[str]:
-    """What needs attention: measures not running or restarted, rejected inputs."""
+    """What needs attention: measures not running or restarted, rejected inputs, sources
+    whose samples are all refused, refused args writes."""
     items = []
     for node in sorted(status):
         for name, m in sorted(status[node].get("measures", {}).items()):
@@ -92,6 +93,12 @@ def problem_rows(status: Mapping[str, Mapping[str, Any]]) -> list[str]:
         if rejected:
             kinds = ",".join(f"{k}={v}" for k, v in sorted(rejected.items()))
             items.append(f"{node} rejected {kinds}")
+        for source, r in sorted((status[node].get("refused_sources") or {}).items()):
+            items.append(f"{node} refuses every sample of {source} ({r['reason']} x{r['refused']})")
+        args_rejected = status[node].get("args_rejected") or {}
+        if args_rejected:
+            kinds = ",".join(f"{k}={v}" for k, v in sorted(args_rejected.items()))
+            items.append(f"{node} refused args {kinds}")
     return ["problems: " + "; ".join(items)] if items else []
 
 
@@ -182,6 +189,10 @@ def render_node(status: Mapping[str, Any]) -> str:
     )
     if status.get("last_rejection"):
         lines.append(f"last rejected: {status['last_rejection']}")
+    for source, r in sorted((status.get("refused_sources") or {}).items()):
+        lines.append(f"every sample of {source} refused: {r['reason']} x{r['refused']}")
+    if status.get("args_rejected"):
+        lines.append(f"args refused: {status['args_rejected']}")
     transit = status.get("transit_ms", {})
     if transit:
         lines.append(

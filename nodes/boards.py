@@ -169,8 +169,10 @@ def _clock(ctx: MeasureContext, **virtual: Any) -> dict[str, Any]:
     return {} if clock is None else {"clock": clock, **virtual}
 
 
-def _driver(args: Mapping[str, Any], protocol: type, what: str) -> Board | None:
-    """The real driver the args name (``driver``, ``driver_args``), or None."""
+def load_driver(args: Mapping[str, Any], protocol: type, what: str) -> Board | None:
+    """The real driver the args name (``driver``, ``driver_args``), or None; ValueError when
+    it does not load or does not implement ``protocol`` (named ``what``). Board families in
+    their own packages use it too."""
     target = args.get("driver")
     if target is None:
         return None
@@ -198,7 +200,7 @@ def open_nav(ctx: MeasureContext, args: Mapping[str, Any]) -> NavDriver:
             if not isinstance(b, NavDriver):
                 raise ValueError(f"board {bid!r} is not a Pmod NAV driver")
             return b
-        board = _driver(args, NavDriver, "NavDriver")
+        board = load_driver(args, NavDriver, "NavDriver")
         if board is None:
             scenario = make_scenario(ctx.world)
             board = SimNavBoard(
@@ -251,7 +253,7 @@ def open_sonar(ctx: MeasureContext, args: Mapping[str, Any]) -> SonarDriver:
             if not isinstance(b, SonarDriver):
                 raise ValueError(f"board {bid!r} is not a MaxSonar driver")
             return b
-        real = _driver(args, SonarDriver, "SonarDriver")
+        real = load_driver(args, SonarDriver, "SonarDriver")
         if real is not None:
             return boards.register(real, bid)
         scenario = make_scenario(ctx.world)

@@ -54,6 +54,7 @@ class Sonar(Measure):
     sync = True
     slot = 0.06  # one ping (49 ms) plus margin
     columns = ("range [m]", "x [m]", "y [m]")
+    inputs = ()  # reads its board, not the store
     arguments = SONAR_ARGS
 
     def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:

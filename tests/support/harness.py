@@ -53,6 +53,7 @@ class Cluster:
         env: dict[str, str],
         duration: float | None,
         overwrite: bool = False,
+        extra: tuple[str, ...] = (),
     ):
         self.run_dir = run_dir
         cmd = [
@@ -70,6 +71,8 @@ class Cluster:
             cmd += ["--duration", str(duration)]
         if overwrite:
             cmd.append("--overwrite")
+        cmd += list(extra)
+        self.log = run_dir.parent / f"{run_dir.name}-launcher.log"
         self.out = open(run_dir.parent / f"{run_dir.name}-launcher.log", "w")  # noqa: SIM115
         self.proc = subprocess.Popen(cmd, env=env, stdout=self.out, stderr=subprocess.STDOUT)
         self.client = None
@@ -91,11 +94,37 @@ class Cluster:
             return False
         return state.get("launcher_pid") == self.proc.pid
 
+    def operator_bus(self, connect: tuple[str, ...], **kw):
+        """A bus configuration joining this cluster as the operator (its credentials and
+        access control), for tests that open their own session."""
+        from hera.bus import BusConfig
+        from hera.security.access import OPERATOR
+        from hera.security.credentials import secured
+
+        return secured(self.client.spec, OPERATOR, BusConfig(connect=connect, **kw))
+
+    def reached(self, session, nodes) -> None:
+        """Wait until every node of ``nodes`` answers a status query on ``session``: its
+        reply comes after its declarations on the same link (declared in one batch when
+        the link opened), so a put on ``session`` reaches its subscribers from then on."""
+        prefix = f"hera/{self.client.spec.name}/ctl"
+
+        def answered(n):
+            return any(r.ok is not None for r in session.get(f"{prefix}/{n}/status", timeout=0.5))
+
+        for n in nodes:
+            wait_for(lambda n=n: answered(n), 10, f"{n} to answer the new session")
+
     def launcher_state(self) -> dict:
         return json.loads((self.run_dir / "launcher.json").read_text())["nodes"]
 
     def pid(self, node: str) -> int:
         return self.status(node)["pid"]
+
+    def restarted(self, node: str, old_pid: int) -> bool:
+        """Whether ``node`` answers with another pid than ``old_pid``, in one query (a node
+        going down may answer one query and not the next)."""
+        return self.client.status(0.5).get(node, {"pid": old_pid})["pid"] != old_pid
 
     def status(self, node: str) -> dict:
         return self.client.query(node, "status")[node]

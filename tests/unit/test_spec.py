@@ -24,7 +24,7 @@ def test_resolved_json_round_trips(tmp_path):
 
 
 BASE = {"cluster": {"name": "c"}, "nodes": [{"name": "a"}]}
-CHUNK = "must use only letters, digits, '_', '.' and '-' (no '/', '*', '$')"
+CHUNK = "must use only letters, digits, '_', '.' and '-' (no '/', '*', '$'), at most 64 of them"
 MEASURE_KEYS = (
     "use, name, period, iterations, sync, sync_group, slot, restart, hang_factor, hang_min, "
     "seed, args"
@@ -105,7 +105,7 @@ MEASURE_KEYS = (
         (
             {"wat": {}},
             "s.toml: unknown table 'wat'; known tables: cluster, supervisor, logging, "
-            "world, defaults, nodes, routers, measures",
+            "security, world, defaults, nodes, routers, measures",
         ),
     ],
 )
