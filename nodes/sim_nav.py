@@ -17,7 +17,7 @@ from typing import Any
 
 from hera import wallclock
 from hera.nodes import geometry as gm
-from hera.nodes.driver import ImuSample
+from hera.nodes.driver import ImuSample, NoReading
 from hera.nodes.fault_model import FaultState
 from hera.nodes.geometry import Vec3
 from hera.nodes.imu_model import NavModel, ideal_acc, ideal_baro, ideal_gyro, ideal_mag
@@ -56,6 +56,9 @@ class SimNavBoard:
         self.acc_scale = self._const(model.acc_scale, "acc_scale", model.acc_scale_sigma, 0.0)
         self.gyro_bias = self._const(model.gyro_bias, "gyro_bias", model.gyro_bias_sigma, 0.0)
         self.gyro_scale = self._const(model.gyro_scale, "gyro_scale", model.gyro_scale_sigma, 0.0)
+        self.acc_run_bias = self._const(
+            model.acc_run_bias, "acc_run_bias", model.acc_run_bias_sigma, 0.0
+        )
         self.walks = [RandomWalk(self.seed, f"gyro{i}", model.gyro_drift) for i in range(3)]
         self.faults = FaultState(self.sensors)
         self.reads = 0
@@ -139,6 +142,8 @@ class SimNavBoard:
 
     def read_imu(self, mag: bool = True) -> ImuSample:
         t = self.clock()
+        if self.model.miss_prob and self.rand.rng("miss", t).random() < self.model.miss_prob:
+            raise NoReading(f"{self.id}: no reading (simulated miss)")
         m, held = self.motion(t)
         acc = self._read("acc", t, m, held)
         gyro = self._read("gyro", t, m, held)
@@ -154,9 +159,11 @@ class SimNavBoard:
         if sensor == "acc":
             a = ideal_acc(m, self.mount)
             vib = 0.0 if held else self.scenario.vibration_acc / G
+            run = (0.0, 0.0, 0.0) if held else self.acc_run_bias
             vals: tuple[float, ...] = tuple(
                 (1.0 + self.acc_scale[i]) * a[i]
                 + self.acc_bias[i]
+                + run[i]
                 + rng.gauss(0.0, md.acc_noise)
                 + (rng.gauss(0.0, vib) if vib else 0.0)
                 for i in range(3)

@@ -29,7 +29,7 @@ from hera.nodes.air import Air, Ping
 from hera.nodes.driver import RangeSample
 from hera.nodes.fault_model import FaultState
 from hera.nodes.noise import KeyedRandom
-from hera.nodes.sonar_model import INCH, SonarModel, nearest_surface, to_inches
+from hera.nodes.sonar_model import INCH, SonarModel, echo_range, nearest_surface, to_inches
 from hera.nodes.world import Motion, Scenario, SonarMount, State, Target, state_at, state_of
 from hera.sync import clock as sync_clock
 
@@ -140,7 +140,8 @@ class SimMaxSonar:
                     time.sleep(left)
             m = self._motion(t)
             true_m = nearest_surface(self.mount, self.half_angle, m, self.target)
-            inches = to_inches(true_m, self.model, rng)
+            heard = echo_range(true_m, self._clutter, self.model, rng)
+            inches = to_inches(heard, self.model, rng)
             others = self.air.overlapping(ping) if self.air is not None else []
             if others:
                 first = min(others, key=lambda p: p.start)
@@ -152,6 +153,10 @@ class SimMaxSonar:
             inches = max(0, round(value))
             # the world is sensed at the true time; the reading is stamped with the node's clock
             return RangeSample(t + wallclock.offset(), inches, bool(others))
+
+    def _clutter(self, u: float) -> float | None:
+        """The range of the first clutter echo (far side, multipath) at ``u``, if any."""
+        return self.scenario.clutter_range(self.mount, self.half_angle, u)
 
     def _log_firing(self, start: float, end: float, grant: Any) -> None:
         """Append ``start end node epoch token deadline`` to the fire log (the audit of real
