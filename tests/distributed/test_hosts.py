@@ -129,7 +129,7 @@ def firings(tmp: Path) -> list[tuple[float, float, str]]:
     out = []
     for f in tmp.glob("fire_*.log"):
         for line in f.read_text().splitlines():
-            start, end, node = line.split()
+            start, end, node = line.split()[:3]  # then the grant: epoch token deadline
             out.append((float(start), float(end), node))
     return sorted(out)
 

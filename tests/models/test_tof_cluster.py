@@ -116,7 +116,8 @@ def test_hera_eval_compares_the_models_in_one_table_and_one_plot(tof_run, tmp_pa
         timeout=120,
     )
     assert out.returncode == 0, out.stderr[-2000:]
-    lines = out.stdout.splitlines()
+    said, *lines = out.stdout.splitlines()
+    assert said == "tof_height: scored against the simulated world's truth"
     assert "fast lag ms" in lines[0] and "still RMSE mm" in lines[0]
     order = [line.split()[0] for line in lines[1:9]]
     assert order == [m for m in ("tof_cv", "tof_ca", "tof_fused", "tof_plane") for _ in (1, 2)]
