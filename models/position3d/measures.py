@@ -1,0 +1,28 @@
+"""The 3-D position models as measures (see :mod:`hera.fusion`): ``position3d`` (ours) and
+``position3d_thesis`` (the thesis's e10; entry-point alias ``e10``)."""
+
+from __future__ import annotations
+
+from hera.fusion import FusionMeasure
+from hera.models.position3d.thesis import ThesisPosition
+from hera.models.position3d.tracker import RangeTracker
+
+
+class Position3d(FusionMeasure):
+    """``position3d``: the target's position and velocity from the raw ranges of sonars at
+    any pose, with standard deviations (our EKF)."""
+
+    name = "position3d"
+    period = 0.05
+    model_class = RangeTracker
+    columns = RangeTracker.columns
+
+
+class Position3dThesis(FusionMeasure):
+    """``position3d_thesis`` (thesis e10): the position from three axis-aligned sonars, the
+    thesis's linear Kalman filter."""
+
+    name = "position3d_thesis"
+    period = 0.05
+    model_class = ThesisPosition
+    columns = ThesisPosition.columns
