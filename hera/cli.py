@@ -12,7 +12,7 @@ import time
 
 from hera.client import ClusterClient, find_run_dir, pid_alive
 
-BENCHES = ("bus", "kalman", "sync")
+BENCHES = ("ahrs", "bus", "kalman", "sync")
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -9,21 +9,26 @@ kinematics for the error-state Kalman filter", sections 5 and 7). Every function
 
 - :func:`predict` (Sola eq. 269-270): ``w = w_m - b``, ``q <- q * Exp(w dt)``,
   ``P <- Phi P Phi^T + Q`` with ``Phi = [[Exp(w dt)^T, -I dt], [0, I]]`` and
-  ``Q = diag(q_att I, q_bias I)``;
+  ``Q = diag(q_att, q_bias I)`` (``q_att`` one variance per gyroscope axis);
 - :func:`vector_update`: a reference vector seen in the body, ``z = s R(q)^T r + v``
   (``s`` its length, e.g. g for the accelerometer): ``H = [s [v x], 0]`` with ``v =
   R^T r``; its noise ``r_var I + R^T C R``, where ``C`` is the covariance of ``R z`` in
   the reference frame, averaged exponentially (weight ``alpha`` per sample, West 1979's
   update): what moves ``z`` there beyond the noise is not the reference vector (for the
   accelerometer: linear acceleration), and it is measured without the filter's own gain.
-  ``C`` is counted ``kappa`` times, the samples per independent one: linear acceleration
-  is not white (a shake at f Hz repeats itself), and a filter that took each of its
-  samples as independent would follow it. ``kappa = pi sqrt(var / var_step)`` (``var``
-  and ``var_step`` the exponential variances of the vector and of its steps from one
-  sample to the next), the sample rate over twice the motion's frequency for a
-  sinusoid, clipped to [1, ``par[5]``];
-- :func:`heading_update`: the magnetometer's heading, and it corrects the heading only, so
-  that it cannot tilt the estimate: the measured field turned into the reference frame,
+  ``C`` is first shrunk by the share of its trace the sensor's noise ``3 r_var`` explains
+  (that is in ``r_var`` already), then counted ``kappa`` times, the samples per
+  independent one: linear acceleration is not white (a shake at f Hz repeats itself), and
+  a filter that took each of its samples as independent would follow it. ``kappa = pi
+  sqrt(var / var_step)`` (``var`` and ``var_step`` the exponential variances of the vector
+  and of its steps from one sample to the next), the sample rate over twice the motion's
+  frequency for a sinusoid, clipped to [1, ``par[5]``];
+- :func:`mag_update`, in one of two modes. *Vector*: the field's direction, a unit vector,
+  observed as ``R(q)^T m_ref`` like the accelerometer (``m_ref`` from the learnt dip angle
+  and ``north``; noise ``r_rel^2`` per axis), so that the magnetometer helps the tilt too
+  (it is not disturbed by linear acceleration). *Heading*: the magnetometer's heading,
+  correcting the heading only, so that the field cannot tilt the estimate at all: the
+  measured field turned into the reference frame,
   its part across ``up``, and the angle ``alpha`` from ``north`` to it about ``up``. To
   first order ``alpha = -(up + tan(dip) north)^T R(q) dtheta``: a tilt error about north
   leaks into the measured heading through the dip angle, and is so accounted for in S;
@@ -55,10 +60,11 @@ STATS = 17
 the observed vector in the reference frame, the last such vector (3), the exponential
 mean of its squared step from one sample to the next (1), and whether there was a last
 one (1)."""
-MAG_PARAMS = 11
-"""``par`` of :func:`heading_update`: up (3), north (3), r_rel, the field's expected norm
-(0: no window) and relative tolerance, its expected dip angle and tolerance (rad; widened
-by three standard deviations of the filter's own tilt)."""
+MAG_PARAMS = 12
+"""``par`` of :func:`mag_update`: up (3), north (3), r_rel, the field's expected norm (0: no
+window) and relative tolerance, its expected dip angle and tolerance (rad; widened by three
+standard deviations of the filter's own tilt), and the mode (1: the field's direction as a
+vector, 0: its heading only)."""
 
 ACCEPTED, REJECTED, OUT_OF_WINDOW, UNUSABLE = 1.0, 0.0, -1.0, -2.0
 """Status written to ``out[1]`` of an update: fused, gated out by the chi-square test,
@@ -125,11 +131,12 @@ def predict(
     wy: float,
     wz: float,
     dt: float,
-    q_att: float,
+    q_att: np.ndarray,
     q_bias: float,
 ) -> None:
     """Propagate by ``dt`` s with the measured body rate ``(wx, wy, wz)`` (rad/s); ``q_att``
-    (rad^2) and ``q_bias`` ((rad/s)^2) are the process noise added over ``dt``."""
+    (rad^2, one per axis) and ``q_bias`` ((rad/s)^2) are the process noise added over
+    ``dt``."""
     w = np.array((wx - b[0], wy - b[1], wz - b[2]))
     dq = rotvec_quat(w * dt)
     qn = quat_mul(q, dq)
@@ -138,9 +145,45 @@ def predict(
     Phi[:3, :3] = quat_matrix(dq).T
     Phi[:3, 3:] = -dt * np.eye(3)
     Pn = Phi @ P @ Phi.T
-    Pn[:3, :3] += q_att * np.eye(3)
+    Pn[:3, :3] += np.diag(q_att)
     Pn[3:, 3:] += q_bias * np.eye(3)
     P[:] = 0.5 * (Pn + Pn.T)
+
+
+def _vector_core(
+    q: np.ndarray,
+    b: np.ndarray,
+    P: np.ndarray,
+    z: np.ndarray,
+    v: np.ndarray,
+    s: float,
+    Rn: np.ndarray,
+    gate: float,
+    out: np.ndarray,
+) -> None:
+    """Fuse ``z`` seen as ``s v`` (``v`` a unit vector in the body frame, ``R(q)^T`` of the
+    reference one) with noise covariance ``Rn``: NIS into ``out[0]``, status ``out[1]``."""
+    nu = z - s * v
+    H = np.zeros((3, 6))
+    H[:, :3] = s * skew(v)
+    S = H @ P @ H.T + Rn
+    try:
+        L = np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        out[0], out[1] = math.inf, UNUSABLE
+        return
+    y = np.linalg.solve(L, nu)
+    out[0] = nis = float(y @ y)
+    if not nis <= gate:
+        out[1] = REJECTED
+        return
+    K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S and P symmetric)
+    dx = K @ nu
+    A = np.eye(6) - K @ H
+    Pn = A @ P @ A.T + K @ Rn @ K.T
+    P[:] = 0.5 * (Pn + Pn.T)
+    _inject(q, b, dx)
+    out[1] = ACCEPTED
 
 
 def vector_update(
@@ -176,35 +219,17 @@ def vector_update(
     kappa = 1.0
     if stats[15] > 0.0:
         kappa = min(max(math.pi * math.sqrt(var / stats[15]), 1.0), par[5])
-    Cb = kappa * (Rq.T @ C @ Rq)
+    # the sensor's own noise is in r_var already: only the excess is motion
+    shrink = max(0.0, 1.0 - 3.0 * r_var / var) if var > 0.0 else 0.0
+    Cb = (kappa * shrink) * (Rq.T @ C @ Rq)
     v = Rq.T @ par[0:3]
-    nu = z - s * v
-    H = np.zeros((3, 6))
-    H[:, :3] = s * skew(v)
     Rn = r_var * np.eye(3) + Cb
-    S = H @ P @ H.T + Rn
-    out[2] = float(nu @ nu)
+    out[2] = float(np.sum((z - s * v) ** 2))
     out[3] = float(np.trace(Cb))
-    try:
-        L = np.linalg.cholesky(S)
-    except np.linalg.LinAlgError:
-        out[0], out[1] = math.inf, UNUSABLE
-        return
-    y = np.linalg.solve(L, nu)
-    out[0] = nis = float(y @ y)
-    if not nis <= gate:
-        out[1] = REJECTED
-        return
-    K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S and P symmetric)
-    dx = K @ nu
-    A = np.eye(6) - K @ H
-    Pn = A @ P @ A.T + K @ Rn @ K.T
-    P[:] = 0.5 * (Pn + Pn.T)
-    _inject(q, b, dx)
-    out[1] = ACCEPTED
+    _vector_core(q, b, P, z, v, s, Rn, gate, out)
 
 
-def heading_update(
+def mag_update(
     q: np.ndarray,
     b: np.ndarray,
     P: np.ndarray,
@@ -215,10 +240,10 @@ def heading_update(
     gate: float,
     out: np.ndarray,
 ) -> None:
-    """Fuse the heading of the field ``m`` (body frame), if its norm and dip angle lie in
-    their windows (``par``, see :data:`MAG_PARAMS`) and its NIS is at most ``gate``.
-    ``out``: NIS, status, |m|, dip angle (rad, positive below the horizontal), alpha
-    (rad)."""
+    """Fuse the field ``m`` (body frame), if its norm and dip angle lie in their windows
+    (``par``, see :data:`MAG_PARAMS`) and its NIS is at most ``gate``: its direction as a
+    unit vector (``par[11]`` = 1, once the dip is known) or its heading only. ``out``: NIS,
+    status, |m|, dip angle (rad, positive below the horizontal), alpha (rad)."""
     up, north = par[0:3], par[3:6]
     r_rel = par[6]
     R = quat_matrix(q)
@@ -244,6 +269,10 @@ def heading_update(
             return
     alpha = math.atan2(float(up @ np.cross(north, mh)), float(north @ mh))
     out[4] = alpha
+    if par[11] > 0.0 and par[7] > 0.0:  # the direction as a unit vector
+        mref = math.cos(par[9]) * north - math.sin(par[9]) * up
+        _vector_core(q, b, P, m / norm, R.T @ mref, 1.0, r_rel * r_rel * np.eye(3), gate, out)
+        return
     r_var = (r_rel * norm / h) ** 2
     H = np.zeros((1, 6))
     H[0, :3] = -(ub + (-mu / h) * (R.T @ north))

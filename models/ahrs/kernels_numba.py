@@ -103,105 +103,10 @@ def _joseph(P, K, H, Rn, m):
 
 
 @_jit
-def predict(q, b, P, wx, wy, wz, dt, q_att, q_bias):
-    wx -= b[0]
-    wy -= b[1]
-    wz -= b[2]
-    dw, dx, dy, dz = _rotvec(wx * dt, wy * dt, wz * dt)
-    w, x, y, z = _qmul(q[0], q[1], q[2], q[3], dw, dx, dy, dz)
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    q[0], q[1], q[2], q[3] = w / n, x / n, y / n, z / n
-    Rd = np.empty((3, 3))
-    _qmat(dw, dx, dy, dz, Rd)
-    Phi = np.zeros((6, 6))
-    for i in range(3):
-        for j in range(3):
-            Phi[i, j] = Rd[j, i]
-        Phi[i, 3 + i] = -dt
-        Phi[3 + i, 3 + i] = 1.0
-    FP = np.empty((6, 6))
-    for i in range(6):
-        for j in range(6):
-            s = 0.0
-            for k in range(6):
-                s += Phi[i, k] * P[k, j]
-            FP[i, j] = s
-    out = np.empty((6, 6))
-    for i in range(6):
-        for j in range(6):
-            s = 0.0
-            for k in range(6):
-                s += FP[i, k] * Phi[j, k]
-            out[i, j] = s
-    for i in range(3):
-        out[i, i] += q_att
-        out[3 + i, 3 + i] += q_bias
-    for i in range(6):
-        for j in range(6):
-            P[i, j] = 0.5 * (out[i, j] + out[j, i])
-
-
-@_jit
-def vector_update(q, b, P, zx, zy, zz, par, stats, alpha, gate, out):
-    s = par[3]
-    r_var = par[4]
-    R = np.empty((3, 3))
-    _qmat(q[0], q[1], q[2], q[3], R)
-    z = np.empty(3)
-    z[0], z[1], z[2] = zx, zy, zz
-    zn = np.empty(3)
-    d = np.empty(3)
-    for i in range(3):
-        zn[i] = R[i, 0] * zx + R[i, 1] * zy + R[i, 2] * zz
-        d[i] = zn[i] - stats[i]
-    for i in range(3):
-        stats[i] += alpha * d[i]
-    C = np.empty((3, 3))
-    var = 0.0
-    for i in range(3):
-        for j in range(3):
-            C[i, j] = (1.0 - alpha) * (stats[3 + 3 * i + j] + alpha * d[i] * d[j])
-            stats[3 + 3 * i + j] = C[i, j]
-        var += C[i, i]
-    if stats[16] > 0.0:
-        st = 0.0
-        for i in range(3):
-            e = zn[i] - stats[12 + i]
-            st += e * e
-        stats[15] += alpha * (st - stats[15])
-    for i in range(3):
-        stats[12 + i] = zn[i]
-    stats[16] = 1.0
-    kappa = 1.0
-    if stats[15] > 0.0:
-        kappa = min(max(math.pi * math.sqrt(var / stats[15]), 1.0), par[5])
-    # Cb = kappa R^T C R; Rn = r_var I + Cb
-    CR = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += C[i, k] * R[k, j]
-            CR[i, j] = acc
-    Rn = np.empty((3, 3))
-    tr = 0.0
-    for i in range(3):
-        for j in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += R[k, i] * CR[k, j]
-            Rn[i, j] = kappa * acc
-        tr += Rn[i, i]
-    for i in range(3):
-        Rn[i, i] += r_var
-    v = np.empty(3)
-    for i in range(3):
-        v[i] = R[0, i] * par[0] + R[1, i] * par[1] + R[2, i] * par[2]
+def _vector_core(q, b, P, z, v, s, Rn, gate, out):
     nu = np.empty(3)
-    nu2 = 0.0
     for i in range(3):
         nu[i] = z[i] - s * v[i]
-        nu2 += nu[i] * nu[i]
     H = np.zeros((3, 6))
     H[0, 1], H[0, 2] = -s * v[2], s * v[1]
     H[1, 0], H[1, 2] = s * v[2], -s * v[0]
@@ -220,8 +125,6 @@ def vector_update(q, b, P, zx, zy, zz, par, stats, alpha, gate, out):
             for k in range(3):
                 acc += H[i, k] * PHt[k, j]
             S[i, j] = acc
-    out[2] = nu2
-    out[3] = tr
     # Cholesky S = L L^T
     L = np.zeros((3, 3))
     for j in range(3):
@@ -282,7 +185,113 @@ def vector_update(q, b, P, zx, zy, zz, par, stats, alpha, gate, out):
 
 
 @_jit
-def heading_update(q, b, P, mx, my, mz, par, gate, out):
+def predict(q, b, P, wx, wy, wz, dt, q_att, q_bias):
+    wx -= b[0]
+    wy -= b[1]
+    wz -= b[2]
+    dw, dx, dy, dz = _rotvec(wx * dt, wy * dt, wz * dt)
+    w, x, y, z = _qmul(q[0], q[1], q[2], q[3], dw, dx, dy, dz)
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    q[0], q[1], q[2], q[3] = w / n, x / n, y / n, z / n
+    Rd = np.empty((3, 3))
+    _qmat(dw, dx, dy, dz, Rd)
+    Phi = np.zeros((6, 6))
+    for i in range(3):
+        for j in range(3):
+            Phi[i, j] = Rd[j, i]
+        Phi[i, 3 + i] = -dt
+        Phi[3 + i, 3 + i] = 1.0
+    FP = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            s = 0.0
+            for k in range(6):
+                s += Phi[i, k] * P[k, j]
+            FP[i, j] = s
+    out = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            s = 0.0
+            for k in range(6):
+                s += FP[i, k] * Phi[j, k]
+            out[i, j] = s
+    for i in range(3):
+        out[i, i] += q_att[i]
+        out[3 + i, 3 + i] += q_bias
+    for i in range(6):
+        for j in range(6):
+            P[i, j] = 0.5 * (out[i, j] + out[j, i])
+
+
+@_jit
+def vector_update(q, b, P, zx, zy, zz, par, stats, alpha, gate, out):
+    s = par[3]
+    r_var = par[4]
+    R = np.empty((3, 3))
+    _qmat(q[0], q[1], q[2], q[3], R)
+    z = np.empty(3)
+    z[0], z[1], z[2] = zx, zy, zz
+    zn = np.empty(3)
+    d = np.empty(3)
+    for i in range(3):
+        zn[i] = R[i, 0] * zx + R[i, 1] * zy + R[i, 2] * zz
+        d[i] = zn[i] - stats[i]
+    for i in range(3):
+        stats[i] += alpha * d[i]
+    C = np.empty((3, 3))
+    var = 0.0
+    for i in range(3):
+        for j in range(3):
+            C[i, j] = (1.0 - alpha) * (stats[3 + 3 * i + j] + alpha * d[i] * d[j])
+            stats[3 + 3 * i + j] = C[i, j]
+        var += C[i, i]
+    if stats[16] > 0.0:
+        st = 0.0
+        for i in range(3):
+            e = zn[i] - stats[12 + i]
+            st += e * e
+        stats[15] += alpha * (st - stats[15])
+    for i in range(3):
+        stats[12 + i] = zn[i]
+    stats[16] = 1.0
+    kappa = 1.0
+    if stats[15] > 0.0:
+        kappa = min(max(math.pi * math.sqrt(var / stats[15]), 1.0), par[5])
+    shrink = max(0.0, 1.0 - 3.0 * r_var / var) if var > 0.0 else 0.0
+    kappa *= shrink
+    # Cb = kappa R^T C R; Rn = r_var I + Cb
+    CR = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += C[i, k] * R[k, j]
+            CR[i, j] = acc
+    Rn = np.empty((3, 3))
+    tr = 0.0
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += R[k, i] * CR[k, j]
+            Rn[i, j] = kappa * acc
+        tr += Rn[i, i]
+    for i in range(3):
+        Rn[i, i] += r_var
+    v = np.empty(3)
+    for i in range(3):
+        v[i] = R[0, i] * par[0] + R[1, i] * par[1] + R[2, i] * par[2]
+    nu2 = 0.0
+    for i in range(3):
+        e = z[i] - s * v[i]
+        nu2 += e * e
+    out[2] = nu2
+    out[3] = tr
+    _vector_core(q, b, P, z, v, s, Rn, gate, out)
+
+
+@_jit
+def mag_update(q, b, P, mx, my, mz, par, gate, out):
     ux, uy, uz = par[0], par[1], par[2]
     nx, ny, nz = par[3], par[4], par[5]
     r_rel = par[6]
@@ -323,6 +332,22 @@ def heading_update(q, b, P, mx, my, mz, par, gate, out):
     cz = nx * h1 - ny * h0
     alpha = math.atan2(ux * cx + uy * cy + uz * cz, nx * h0 + ny * h1 + nz * h2)
     out[4] = alpha
+    if par[11] > 0.0 and par[7] > 0.0:  # the direction as a unit vector
+        cd, sd = math.cos(par[9]), math.sin(par[9])
+        z = np.empty(3)
+        z[0], z[1], z[2] = mx / norm, my / norm, mz / norm
+        v = np.empty(3)
+        for i in range(3):
+            v[i] = (
+                R[0, i] * (cd * nx - sd * ux)
+                + R[1, i] * (cd * ny - sd * uy)
+                + R[2, i] * (cd * nz - sd * uz)
+            )
+        Rn = np.zeros((3, 3))
+        for i in range(3):
+            Rn[i, i] = r_rel * r_rel
+        _vector_core(q, b, P, z, v, 1.0, Rn, gate, out)
+        return
     r_var = (r_rel * norm / h) ** 2
     t = -mu / h
     H = np.zeros((1, 6))
@@ -372,12 +397,12 @@ def compiled() -> SimpleNamespace:
     global _COMPILED
     if _COMPILED is None:
         q, b, P = np.array((1.0, 0.0, 0.0, 0.0)), np.zeros(3), np.eye(6) * 1e-4
-        par, stats, out = np.zeros(11), np.zeros(17), np.zeros(5)
+        par, stats, out = np.zeros(12), np.zeros(17), np.zeros(5)
         par[0:3] = (0.0, 0.0, 1.0)
-        predict(q, b, P, 0.0, 0.0, 0.0, 0.01, 0.0, 0.0)
+        predict(q, b, P, 0.0, 0.0, 0.0, 0.01, np.zeros(3), 0.0)
         vector_update(q, b, P, 0.0, 0.0, 9.8, par, stats, 0.1, 1.0, out)
-        heading_update(q, b, P, 0.0, 0.2, -0.4, par, 1.0, out)
+        mag_update(q, b, P, 0.0, 0.2, -0.4, par, 1.0, out)
         _COMPILED = SimpleNamespace(
-            predict=predict, vector_update=vector_update, heading_update=heading_update
+            predict=predict, vector_update=vector_update, mag_update=mag_update
         )
     return _COMPILED

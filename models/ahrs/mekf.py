@@ -16,12 +16,14 @@ whose observation is the quaternion the accelerometer and magnetometer give toge
   external-acceleration handling, but measured without the filter's own gain, so a filter
   that follows a shake cannot talk itself into trusting it); a sample whose innovation
   fails the chi-square test at ``acc_gate`` (a jolt) is rejected;
-- the magnetometer observes the heading only (it cannot tilt the estimate), and is
-  rejected when the field's norm or dip angle leaves its window around the values learnt
-  from the accepted samples (a magnetic disturbance), or when the heading innovation fails
-  the chi-square test at ``mag_gate``. After ``reacquire_s`` s of refusals (the field has
-  changed for good, or the heading is wrong) the next heading is taken whatever it says,
-  its variance reopened, and the norm and dip are learnt again;
+- the magnetometer observes the field's direction (``mag_mode = "vector"``: it helps the
+  tilt too, and is not disturbed by linear acceleration) or its heading only
+  (``"heading"``: no field can tilt the estimate), and is rejected when the field's norm
+  or dip angle leaves its window around the values learnt from the accepted samples (a
+  magnetic disturbance), or when its innovation fails the chi-square test at
+  ``mag_gate``. After ``reacquire_s`` s of refusals (the field has changed for good, or
+  the heading is wrong) the next sample is taken whatever it says, the heading's variance
+  reopened, and the norm and dip are learnt again;
 - the filter starts with a coarse alignment (as an inertial navigator does): over the first
   ``align_s`` s the accelerometer and magnetometer samples are turned into the first
   sample's frame with the gyroscope and averaged; the attitude of the means (TRIAD, thesis
@@ -53,19 +55,27 @@ class MekfSettings:
     """The filter's noise model and gates (defaults suit a MEMS IMU such as the LSM9DS1 of
     the Pmod NAV, with a margin over its data sheet figures).
 
-    ``gyro_noise``: angle random walk (rad/sqrt(s)); ``gyro_scale``: relative scale error
-    of the gyroscope (1: 100 %); ``bias_walk``: bias random walk (rad/s/sqrt(s));
-    ``acc_noise``: accelerometer noise and residual bias (m/s^2, per axis);
+    ``gyro_noise``: angle random walk (rad/sqrt(s)), or one per axis; ``gyro_scale``:
+    relative scale error of the gyroscope (1: 100 %); ``bias_walk``: bias random walk
+    (rad/s/sqrt(s)); ``acc_noise``: accelerometer noise and residual bias (m/s^2, per axis);
     ``gravity``: m/s^2; ``mag_noise``: magnetometer noise and calibration residual relative
     to the field; ``acc_gate`` / ``mag_gate``: chi-square gate probabilities; ``ext_tau``:
     s over which the linear acceleration's power is averaged; ``mag_norm_tol``: relative
     window of the field's norm; ``mag_dip_tol_deg``: window of its dip angle (deg);
     ``ref_tau``: s over which the field's norm and dip are learnt; ``reacquire_s``: s of
     rejected headings before the heading is taken again; ``align_s``: s of coarse
-    alignment; ``bias_std0``: initial standard deviation of the gyroscope's bias (rad/s).
+    alignment; ``bias_std0``: initial standard deviation of the gyroscope's bias (rad/s);
+    ``gyro_trapezoid``: a gyroscope sample is the rate at its time, so the rate over the
+    interval to it is the mean of the two ends (True), or it is already the mean rate since
+    the previous sample (False: an integrating gyroscope, or data made by differencing
+    orientations, like the ``ahrs`` package's ``Sensors``); ``mag_mode``: ``"vector"``
+    (the field's direction corrects tilt and heading) or ``"heading"`` (the heading only:
+    no magnetic field can tilt the estimate, whatever gets past the gates); ``dip_deg``:
+    the field's dip angle below the horizontal (deg; from a geomagnetic model: about 65 deg
+    in Belgium), or None to learn it with the norm.
     """
 
-    gyro_noise: float = 5e-4
+    gyro_noise: float | tuple[float, float, float] = 5e-4
     gyro_scale: float = 0.005
     bias_walk: float = 2e-4
     acc_noise: float = 0.3
@@ -81,12 +91,26 @@ class MekfSettings:
     reacquire_s: float = 20.0
     align_s: float = 1.0
     bias_std0: float = 0.01
+    gyro_trapezoid: bool = True
+    mag_mode: str = "vector"
+    dip_deg: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("gyro_noise", "bias_walk", "acc_noise", "gravity", "mag_noise", "ext_tau"):
+        g = self.gyro_noise
+        if isinstance(g, (list, tuple)):
+            if len(g) != 3 or not all(
+                isinstance(v, (int, float)) and math.isfinite(v) and v > 0 for v in g
+            ):
+                raise ValueError(f"gyro_noise must be a number > 0 or 3 of them, got {g!r}")
+            object.__setattr__(self, "gyro_noise", tuple(float(v) for v in g))
+        elif not (isinstance(g, (int, float)) and math.isfinite(g) and g > 0):
+            raise ValueError(f"gyro_noise must be a number > 0 or 3 of them, got {g!r}")
+        for name in ("bias_walk", "acc_noise", "gravity", "mag_noise", "ext_tau"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a number > 0, got {v!r}")
+        if self.mag_mode not in ("vector", "heading"):
+            raise ValueError(f"mag_mode must be 'vector' or 'heading', got {self.mag_mode!r}")
         for name in ("acc_gate", "mag_gate"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0.0 < v < 1.0):
@@ -139,9 +163,13 @@ class Mekf:
         self.mag_par[6] = s.mag_noise
         self.mag_par[8] = s.mag_norm_tol
         self.mag_par[10] = math.radians(s.mag_dip_tol_deg)
+        self.mag_par[11] = 1.0 if s.mag_mode == "vector" else 0.0
         self.out = np.zeros(5)
+        g = s.gyro_noise
+        self._arw2 = tuple(float(x) ** 2 for x in (g if isinstance(g, (tuple, list)) else (g,) * 3))
+        self._q_att = np.zeros(3)
         self.acc_gate = chi2_ppf(s.acc_gate, 3)
-        self.mag_gate = chi2_ppf(s.mag_gate, 1)
+        self.mag_gate = chi2_ppf(s.mag_gate, 3 if s.mag_mode == "vector" else 1)
         self.acc_stats = np.zeros(npk.STATS)  # acc in the reference frame: mean, covariance
         self.mag_norm: float | None = None
         self.mag_dip: float | None = None
@@ -206,11 +234,14 @@ class Mekf:
             return False
         k, s = self.k, self.s
         if dt > 0:
-            w0 = self._w
+            w0 = self._w if s.gyro_trapezoid else gyro
             wx, wy, wz = 0.5 * (w0[0] + gyro[0]), 0.5 * (w0[1] + gyro[1]), 0.5 * (w0[2] + gyro[2])
-            rate = math.sqrt(wx * wx + wy * wy + wz * wz)
-            q_att = (s.gyro_noise**2 + (s.gyro_scale * rate) ** 2) * dt
-            k.predict(self.q, self.b, self.P, wx, wy, wz, dt, q_att, s.bias_walk**2 * dt)
+            scale = (s.gyro_scale * s.gyro_scale) * (wx * wx + wy * wy + wz * wz)
+            qa, arw = self._q_att, self._arw2
+            qa[0] = (arw[0] + scale) * dt
+            qa[1] = (arw[1] + scale) * dt
+            qa[2] = (arw[2] + scale) * dt
+            k.predict(self.q, self.b, self.P, wx, wy, wz, dt, qa, s.bias_walk**2 * dt)
             self.t = t
         self._w = (float(gyro[0]), float(gyro[1]), float(gyro[2]))
         self._acc(acc, dt)
@@ -241,10 +272,11 @@ class Mekf:
             self.P[:3, :3] += np.outer(u, u) * math.pi**2
         learnt = self.mag_norm is not None
         if learnt:
-            par[7], par[9] = self.mag_norm, self.mag_dip
+            par[7] = self.mag_norm
+            par[9] = self.mag_dip if s.dip_deg is None else math.radians(s.dip_deg)
         else:
             par[7] = 0.0  # nothing learnt yet: any field
-        self.k.heading_update(self.q, self.b, self.P, mag[0], mag[1], mag[2], par, gate, out)
+        self.k.mag_update(self.q, self.b, self.P, mag[0], mag[1], mag[2], par, gate, out)
         status = out[1]
         if status == npk.ACCEPTED:
             self.counters["mag_fused"] += 1

@@ -61,7 +61,7 @@ class AhrsModel(_Follow):
         self,
         board: str | None = None,
         north_deg: float = 90.0,
-        gyro_noise: float = MekfSettings.gyro_noise,
+        gyro_noise: float | list[float] = MekfSettings.gyro_noise,
         gyro_scale: float = MekfSettings.gyro_scale,
         bias_walk: float = MekfSettings.bias_walk,
         acc_noise: float = MekfSettings.acc_noise,
