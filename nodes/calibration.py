@@ -135,6 +135,12 @@ def ellipsoid_fit(
         raise ValueError(f"an ellipsoid fit needs at least 9 readings, got {len(m)}")
     x, y, z = m[:, 0], m[:, 1], m[:, 2]
     D = np.column_stack((x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z, 2 * x, 2 * y, 2 * z))
+    sv = np.linalg.svd(D, compute_uv=False)
+    if not sv[-1] > 1e-9 * sv[0]:
+        raise ValueError(
+            "the readings do not determine an ellipsoid: the poses do not spread the vector "
+            "over enough directions"
+        )
     v, *_ = np.linalg.lstsq(D, np.ones(len(m)), rcond=None)
     A = np.array(((v[0], v[3], v[4]), (v[3], v[1], v[5]), (v[4], v[5], v[2])))
     try:
@@ -211,8 +217,9 @@ def calibrate_nav3(
     (gauss) by the turns of thesis ch. 7.1.1 (z 180 deg, then x 180 deg).
 
     ``full``: beyond the thesis, the gyroscope bias as before, then readings in 48 poses
-    (``n_pose`` each, :func:`_poses`) for two :func:`ellipsoid_fit`: the accelerometer's bias ``acc_bias``
-    (g) and scale ``acc_scale`` (3x3 rows, to a 1 g sphere) and the magnetometer's hard iron
+    (``n_pose`` each, :func:`_poses`) for two :func:`ellipsoid_fit`: the accelerometer's
+    bias ``acc_bias`` (g) and scale ``acc_scale`` (3x3 rows, to a 1 g sphere) and the
+    magnetometer's hard iron
     ``mag`` and soft iron ``soft_iron`` (3x3 rows); and the board's :func:`level_rotation`
     on its body, ``mount`` (3x3 rows), from the corrected accelerometer at rest (the body is
     taken to be level in the pose the board is calibrated in)."""

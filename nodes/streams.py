@@ -76,8 +76,9 @@ def nav3_stream(
     """``duration`` s of ``nav3`` samples from ``start`` s after the world's epoch.
 
     The board (seed as the live node's: ``stable_seed("pmod_nav", node, "nav", seed)``) is
-    calibrated at ``start`` as ``nav3`` would (``full``: with ``calibration = "full"``); each reading time is ``start + k / rate`` plus a uniform
-    jitter of up to ``jitter`` s (the live schedule's lateness).
+    calibrated at ``start`` as ``nav3`` would (``full``: with ``calibration = "full"``);
+    each reading time is ``start + k / rate`` plus a uniform jitter of up to ``jitter`` s
+    (the live schedule's lateness).
     """
     epoch = epoch_of(world)
     t0 = epoch + start

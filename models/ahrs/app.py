@@ -1,4 +1,4 @@
-"""The AHRS application (entry point ``ahrs`` of ``hera.apps``): truth, scores, plots and the
+"""The AHRS application (entry point ``attitude`` of ``hera.apps``): truth, scores, plots and the
 live panel of our AHRS and the thesis's (e11), through :class:`hera.application.Application`.
 
 Truth: the body's orientation in the simulated world (any scenario; the ones of thesis
@@ -78,9 +78,9 @@ def attitude_errors(series: Series, truth: Truth) -> tuple[np.ndarray, ...]:
 class AhrsApp(Application):
     """Attitude and heading of a Pmod NAV (thesis ch. 7.1): ours and the thesis's e11."""
 
-    name = "ahrs"
+    name = "attitude"
     title = "attitude and heading from a 9-axis IMU: ours and the thesis's e11 (ch. 7.1)"
-    measures = ("ahrs", "ahrs_thesis")
+    measures = ("attitude", "attitude_thesis")
     metrics = (
         Metric("att_mean_deg", "att mean", "deg"),
         Metric("att_max_deg", "att max", "deg"),

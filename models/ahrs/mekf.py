@@ -92,7 +92,7 @@ class MekfSettings:
     align_s: float = 1.0
     bias_std0: float = 0.01
     gyro_trapezoid: bool = True
-    mag_mode: str = "vector"
+    mag_mode: str = "heading"
     dip_deg: float | None = None
 
     def __post_init__(self) -> None:

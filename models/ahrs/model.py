@@ -77,6 +77,9 @@ class AhrsModel(_Follow):
         reacquire_s: float = MekfSettings.reacquire_s,
         align_s: float = MekfSettings.align_s,
         bias_std0: float = MekfSettings.bias_std0,
+        gyro_trapezoid: bool = MekfSettings.gyro_trapezoid,
+        mag_mode: str = MekfSettings.mag_mode,
+        dip_deg: float | None = MekfSettings.dip_deg,
     ) -> None:
         super().__init__(board)
         settings = MekfSettings(
@@ -96,6 +99,9 @@ class AhrsModel(_Follow):
             reacquire_s=reacquire_s,
             align_s=align_s,
             bias_std0=bias_std0,
+            gyro_trapezoid=gyro_trapezoid,
+            mag_mode=mag_mode,
+            dip_deg=dip_deg,
         )
         self.filter = Mekf(world_reference(north_deg), settings)
 

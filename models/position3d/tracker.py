@@ -30,6 +30,11 @@ as an axial coordinate:
 - it starts once its sonars' first readings (within ``init_s``) determine a position
   (:func:`.sonars.beam_points`), or at ``x0`` when given.
 
+- the published estimate is smoothed with the readings of the next ``lag`` s (a fixed-lag
+  Rauch-Tung-Striebel smoother): it is ``lag`` s old when published, and instead of
+  extrapolating each axis from its last reading (the sonars sound one at a time, an axis
+  is read every 0.15 s) it interpolates between two (0 gives the real-time filter).
+
 The estimate carries its standard deviations, so a reader sees which direction a lost sonar
 leaves unobserved. dt comes from the samples' measurement times (a sonar stamps the start
 of its ping); a reading older than the filter by more than ``max_lag`` s is dropped.
@@ -38,6 +43,8 @@ of its ping); a reading older than the filter by more than ``max_lag`` s is drop
 from __future__ import annotations
 
 import math
+from collections import deque
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -45,6 +52,20 @@ import numpy as np
 from hera.estimation import KalmanFilter, Observations
 from hera.models.position3d.sonars import Sonar, beam_points, parse_sonars
 from hera.store import Sample
+
+
+@dataclass(frozen=True)
+class _Step:
+    """One step of the filter: its time, filtered state, the prediction it started from and
+    the transition from the step before (what the smoother needs)."""
+
+    t: float
+    x: np.ndarray
+    P: np.ndarray
+    x_pred: np.ndarray
+    P_pred: np.ndarray
+    F: np.ndarray
+
 
 COLUMNS = (
     "x [m]",
@@ -65,7 +86,7 @@ class RangeTracker:
     ``q_acc`` (0.02 m^2/s^3), ``q_along`` (0.1), ``q_across`` (0.001), ``v_ref`` (0.05
     m/s), ``tau_v`` (2 s), ``half_angle_deg`` (20), ``beam_margin_deg`` (2), ``beam_std`` (0.03 m),
     ``gate`` (0.9999), ``init_s`` (1.0 s), ``x0`` (m, optional), ``pos_std0`` (0.1 m),
-    ``vel_std0`` (0.5 m/s), ``max_lag`` (0.25 s)."""
+    ``vel_std0`` (0.5 m/s), ``max_lag`` (0.25 s), ``lag`` (0.2 s)."""
 
     inputs = ("sonar",)
     columns = COLUMNS
@@ -89,6 +110,7 @@ class RangeTracker:
         pos_std0: float = 0.1,
         vel_std0: float = 0.5,
         max_lag: float = 0.25,
+        lag: float = 0.2,
     ) -> None:
         for name, v in (
             ("var_range", var_range),
@@ -113,6 +135,10 @@ class RangeTracker:
         self.gate = gate
         self.init_s = float(init_s)
         self.max_lag = float(max_lag)
+        if not (isinstance(lag, (int, float)) and 0.0 <= lag <= 5.0):
+            raise ValueError(f"lag must be a number of seconds in [0, 5], got {lag!r}")
+        self.lag = float(lag)
+        self._history: deque[_Step] = deque()
         self.p0 = (float(pos_std0) ** 2, float(vel_std0) ** 2)
         self.kf: KalmanFilter | None = None
         self.t: float | None = None
@@ -197,8 +223,10 @@ class RangeTracker:
             return False
         kf = self.kf
         if dt > 0:
+            F = self._F(dt)
             kf.predict(dt, Q=self._Q(dt))
             self.t = sample.t
+            self._history.append(_Step(sample.t, kf.x, kf.P, kf.x, kf.P, F))
         known = float(np.max(np.diag(kf.P)[:3])) <= self.beam_std**2
         if known and not sonar.in_beam(kf.x[:3], self.cos_beam):
             self.counts["beam_edge"] += 1
@@ -208,16 +236,52 @@ class RangeTracker:
         result = kf.update(obs, gate=self.gate)
         if result.rejected:
             self.counts["rejected"] += 1
-        else:
-            self.counts["fused"] += 1
+            return dt > 0
+        self.counts["fused"] += 1
+        if self._history:  # the step's filtered state (same-time readings share a step)
+            last = self._history[-1]
+            self._history[-1] = _Step(last.t, kf.x, kf.P, last.x_pred, last.P_pred, last.F)
+        self._prune()
         return True
 
-    def estimate(self) -> tuple[float, list[float]] | None:
+    def _prune(self) -> None:
+        """Keep the steps a smoothed estimate ``lag`` s back needs (one before it)."""
+        h = self._history
+        if not h:
+            return
+        keep_from = h[-1].t - self.lag
+        while len(h) > 2 and h[1].t <= keep_from:
+            h.popleft()
+
+    def smoothed(self) -> tuple[float, np.ndarray, np.ndarray] | None:
+        """(t, x, P) at the newest step at least ``lag`` s older than the newest reading,
+        smoothed by every step since (Rauch, Tung, Striebel 1965: ``C = P_f F^T
+        P_pred^-1``, ``x_s = x_f + C (x_s' - x_pred')``, ``P_s = P_f + C (P_s' - P_pred')
+        C^T``); the filtered state when ``lag`` is 0 or nothing is that old yet."""
         if self.kf is None or self.t is None:
             return None
+        h = self._history
+        if self.lag <= 0.0 or len(h) < 2 or h[0].t > h[-1].t - self.lag:
+            return self.t, self.kf.x, self.kf.P
         x, P = self.kf.x, self.kf.P
+        target = h[-1].t - self.lag
+        k = len(h) - 1
+        while k > 0 and h[k].t > target:
+            f, nxt = h[k - 1], h[k]
+            C = np.linalg.solve(nxt.P_pred, nxt.F @ f.P).T  # P_f F^T P_pred^-1
+            x = f.x + C @ (x - nxt.x_pred)
+            P = f.P + C @ (P - nxt.P_pred) @ C.T
+            k -= 1
+        return h[k].t, x, 0.5 * (P + P.T)
+
+    def estimate(self) -> tuple[float, list[float]] | None:
+        """(time, [x, y, z, std x, std y, std z, vx, vy, vz]): the :meth:`smoothed` state."""
+        s = self.smoothed()
+        if s is None:
+            return None
+        t, x, P = s
         std = [math.sqrt(max(float(P[i, i]), 0.0)) for i in range(3)]
-        return self.t, [*(float(v) for v in x[:3]), *std, *(float(v) for v in x[3:])]
+        return t, [*(float(v) for v in x[:3]), *std, *(float(v) for v in x[3:])]
 
     def counters(self) -> dict[str, int]:
         """Readings ``fused``, ``rejected`` by the gate, skipped at the ``beam_edge``,
