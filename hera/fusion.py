@@ -154,6 +154,9 @@ class FusionMeasure(Measure):
 
     @classmethod
     def check_args(cls, args: Mapping[str, Any], where: str) -> list[str]:
+        """The measure's own problems, unknown model settings, and, when the model class
+        has ``check(settings)`` (a cheap check of the values, raising ValueError or
+        TypeError with one sentence), the settings' values, before anything starts."""
         problems = super().check_args(args, where)
         model = args.get("model", {})
         known = cls.settings()
@@ -164,6 +167,12 @@ class FusionMeasure(Measure):
                         f"{where}: model: unknown setting {key!r}{did_you_mean(str(key), known)}"
                         f"; known settings: {', '.join(known)}"
                     )
+        check = getattr(cls.model_class, "check", None)
+        if not problems and isinstance(model, Mapping) and callable(check):
+            try:
+                check({**dict(model), **cls.model_fixed})
+            except (TypeError, ValueError) as e:
+                problems.append(f"{where}: model: {e}")
         return problems
 
     @classmethod

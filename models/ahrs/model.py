@@ -16,6 +16,7 @@ heading (deg) and its estimate of the gyroscope's bias (deg/s).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from hera.models.ahrs.frames import world_reference
 from hera.models.ahrs.mekf import Mekf, MekfSettings
@@ -27,6 +28,16 @@ QUAT = ("qw", "qx", "qy", "qz")
 ANGLES = ("yaw [deg]", "pitch [deg]", "roll [deg]")
 STD = ("tilt std [deg]", "heading std [deg]")
 BIAS = ("gyro bias x [deg/s]", "gyro bias y [deg/s]", "gyro bias z [deg/s]")
+
+
+def check_common(settings: dict[str, Any]) -> None:
+    """Check and take out the settings every AHRS model has: ``board`` and ``north_deg``."""
+    board = settings.pop("board", None)
+    if board is not None and not isinstance(board, str):
+        raise ValueError(f"board must be a node name, got {board!r}")
+    north = settings.pop("north_deg", 90.0)
+    if isinstance(north, bool) or not isinstance(north, (int, float)) or not math.isfinite(north):
+        raise ValueError(f"north_deg must be a number of degrees, got {north!r}")
 
 
 class _Follow:
@@ -105,6 +116,14 @@ class AhrsModel(_Follow):
         )
         self.filter = Mekf(world_reference(north_deg), settings)
 
+    @classmethod
+    def check(cls, settings: dict[str, Any]) -> None:
+        """Raise ValueError naming a bad setting, without building the filter (whose
+        kernels may be compiled)."""
+        s = dict(settings)
+        check_common(s)
+        MekfSettings(**s)
+
     def process(self, sample: Sample) -> bool:
         """Predict to the sample's time and fuse it; True once the estimate moved."""
         if not self.accept(sample):
@@ -149,6 +168,13 @@ class ThesisAhrsModel(_Follow):
     ) -> None:
         super().__init__(board)
         self.filter = ThesisAhrs(world_reference(north_deg), q_var, r_var)
+
+    @classmethod
+    def check(cls, settings: dict[str, Any]) -> None:
+        """Raise ValueError naming a bad setting."""
+        s = dict(settings)
+        check_common(s)
+        ThesisAhrs(world_reference(), **s)
 
     def process(self, sample: Sample) -> bool:
         if not self.accept(sample):

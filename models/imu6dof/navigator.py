@@ -67,6 +67,12 @@ COLUMNS = (
 _N = 12
 
 
+def _check_numbers(**values: Any) -> None:
+    for name, v in values.items():
+        if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise ValueError(f"{name} must be a number > 0, got {v!r}")
+
+
 class Navigator:
     """The 6-DOF IMU (see module docstring). Settings: ``aiding`` (True), ``position``
     ("position3d"), ``position_node`` (None: the first node publishing it, and the next
@@ -99,16 +105,16 @@ class Navigator:
         max_lag: float = 0.5,
         feedback: bool = False,
     ) -> None:
-        for name, v in (
-            ("gravity", gravity),
-            ("q_jerk", q_jerk),
-            ("q_bias", q_bias),
-            ("var_acc", var_acc),
-            ("fix_inflation", fix_inflation),
-            ("fix_var_min", fix_var_min),
-        ):
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a number > 0, got {v!r}")
+        _check_numbers(
+            gravity=gravity,
+            q_jerk=q_jerk,
+            q_bias=q_bias,
+            var_acc=var_acc,
+            fix_inflation=fix_inflation,
+            fix_var_min=fix_var_min,
+            max_lag=max_lag,
+            bias_std0=bias_std0,
+        )
         self.aiding = bool(aiding)
         self.feedback = bool(feedback)
         self.position = str(position)
@@ -136,6 +142,24 @@ class Navigator:
             self._H_acc[i, 6 + i] = self._H_acc[i, 9 + i] = 1.0
             self._H_pos[i, i] = 1.0
         self.counts = {"fixes": 0, "fixes_late": 0, "other": 0}
+
+    @classmethod
+    def check(cls, settings: dict[str, Any]) -> None:
+        """Raise ValueError naming a bad setting, without building the filters (the AHRS's
+        kernels may be compiled)."""
+        import inspect
+
+        params = inspect.signature(cls).parameters
+        values = {k: p.default for k, p in params.items()} | dict(settings)
+        numbers = ("gravity", "q_jerk", "q_bias", "var_acc", "fix_inflation", "fix_var_min")
+        _check_numbers(**{k: values[k] for k in (*numbers, "max_lag", "bias_std0")})
+        for key in ("x0",):
+            if values[key] is not None:
+                try:
+                    np.array(values[key], dtype=np.float64).reshape(3)
+                except (TypeError, ValueError):
+                    raise ValueError(f"{key} must be 3 numbers, got {values[key]!r}") from None
+        MekfSettings(gravity=values["gravity"])
 
     @staticmethod
     def _F(dt: float) -> np.ndarray:

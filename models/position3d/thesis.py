@@ -52,6 +52,11 @@ class ThesisPosition:
         self.t: float | None = None
         self.other = 0
 
+    @classmethod
+    def check(cls, settings: dict[str, Any]) -> None:
+        """Raise ValueError naming a bad setting (the model is cheap to build: build it)."""
+        cls(**settings)
+
     def process(self, sample: Sample) -> bool:
         """One step per reading: predict, then fuse its axis."""
         if sample.name != "sonar" or not sample.values:

@@ -205,6 +205,11 @@ class RangeTracker:
 
         obs.add(f"sonar@{sonar.node}", [r], h=h, jacobian=jac, R=self.var_range)
 
+    @classmethod
+    def check(cls, settings: dict[str, Any]) -> None:
+        """Raise ValueError naming a bad setting (the model is cheap to build: build it)."""
+        cls(**settings)
+
     def process(self, sample: Sample) -> bool:
         """Predict to the reading's time and fuse it; True if the estimate changed."""
         if sample.name != "sonar" or not sample.values:
