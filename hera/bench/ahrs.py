@@ -26,18 +26,27 @@ samples and the speed ratio is the median over the turns of (their run's median 
 with the garbage collector paused, so a change of load on the machine hits every filter
 of a turn alike. Targets: ours at least ``TARGET`` times faster than the ``ahrs`` EKF, with
 a mean error no worse.
+
+``--cpu SECONDS`` measures instead the live CPU of each AHRS at 100 Hz: the ``computer``
+node of a real two-node cluster fed ``nav3`` at 100 Hz, with the model and without, on
+each estimation backend.
 """
 
 from __future__ import annotations
 
 import argparse
 import gc
+import json
 import math
+import os
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -292,6 +301,87 @@ def format_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+CPU_SPEC = """
+[cluster]
+name = "ahrscpu{tag}"
+estimation_backend = "{backend}"
+
+[world]
+scenario = "rotation_slow"
+
+[[nodes]]
+name = "nav_1"
+
+  [[nodes.measures]]
+  use = "nav3"
+  period = 0.01
+  args = {{ calibration = "full" }}
+
+[[nodes]]
+name = "computer"
+{model}
+"""
+CPU_MODEL = """
+  [[nodes.measures]]
+  use = "{use}"
+  period = 0.05
+  args = {{ mode = "arrival" }}
+"""
+
+
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of process ``pid`` so far (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def node_cpu(backend: str, use: str | None, seconds: float, settle: float = 12.0) -> float:
+    """CPU (% of one core) of the node ``computer`` of a two-node cluster (``nav_1``
+    publishing ``nav3`` at 100 Hz, on ``rotation_slow``) running measure ``use`` (or
+    nothing) on the estimation ``backend``, over ``seconds`` after ``settle`` s (start,
+    calibration, kernels loaded)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        spec = Path(tmp) / "cpu.toml"
+        model = CPU_MODEL.format(use=use) if use else ""
+        spec.write_text(CPU_SPEC.format(tag=os.getpid(), backend=backend, model=model))
+        run = Path(tmp) / "run"
+        cmd = [sys.executable, "-m", "hera", "up", str(spec), "--run-dir", str(run)]
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            deadline = time.monotonic() + 60.0
+            pid = None
+            while pid is None:
+                if time.monotonic() > deadline or proc.poll() is not None:
+                    raise RuntimeError(f"the cluster of {spec} did not start")
+                try:
+                    state = json.loads((run / "launcher.json").read_text())
+                    pid = state["nodes"]["computer"]["pid"]
+                except (OSError, ValueError, KeyError, TypeError):
+                    time.sleep(0.2)
+            time.sleep(settle)
+            c0, t0 = _cpu_seconds(pid), time.monotonic()
+            time.sleep(seconds)
+            return 100.0 * (_cpu_seconds(pid) - c0) / (time.monotonic() - t0)
+        finally:
+            proc.terminate()
+            proc.wait(30)
+
+
+def cpu_table(seconds: float) -> str:
+    """The node CPU with each AHRS at 100 Hz less the node's CPU without, per backend."""
+    head = ("backend", "node alone %", "ours %", "+ours", "e11 %", "+e11")
+    lines = [f"{head[0]:<8} {head[1]:>13} {head[2]:>8} {head[3]:>7} {head[4]:>7} {head[5]:>7}"]
+    for backend in ("numba", "numpy"):
+        base = node_cpu(backend, None, seconds)
+        ours = node_cpu(backend, "attitude", seconds)
+        thesis = node_cpu(backend, "attitude_thesis", seconds)
+        lines.append(
+            f"{backend:<8} {base:>13.1f} {ours:>8.1f} {ours - base:>7.1f} {thesis:>7.1f} "
+            f"{thesis - base:>7.1f}"
+        )
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     """CLI entry point (``hera bench ahrs``). Returns a process exit code."""
     ap = argparse.ArgumentParser(prog="hera bench ahrs", description=__doc__.splitlines()[0])
@@ -299,7 +389,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--samples", type=int, default=3000, help="ahrs.Sensors samples (100 Hz)")
     ap.add_argument("--seconds", type=float, default=30.0, help="rotation_fast seconds")
     ap.add_argument("--quick", action="store_true", help="small data sets, rough numbers")
+    ap.add_argument(
+        "--cpu",
+        type=float,
+        metavar="SECONDS",
+        help="instead: the live node CPU of each AHRS at 100 Hz, measured over SECONDS on "
+        "real clusters (six of them, one after the other: hold the cluster lock)",
+    )
     args = ap.parse_args(argv if argv is not None else sys.argv[1:])
+    if args.cpu is not None:
+        if not args.cpu > 0:
+            print("hera bench ahrs: --cpu must be a number of seconds > 0", file=sys.stderr)
+            return 2
+        print("node CPU (% of one core): the computer node fed nav3 at 100 Hz, with and without")
+        print(cpu_table(args.cpu))
+        return 0
     try:
         import ahrs  # noqa: F401
     except ImportError:
