@@ -16,9 +16,9 @@ whose observation is the quaternion the accelerometer and magnetometer give toge
   external-acceleration handling, but measured without the filter's own gain, so a filter
   that follows a shake cannot talk itself into trusting it); a sample whose innovation
   fails the chi-square test at ``acc_gate`` (a jolt) is rejected;
-- the magnetometer observes the field's direction (``mag_mode = "vector"``: it helps the
-  tilt too, and is not disturbed by linear acceleration) or its heading only
-  (``"heading"``: no field can tilt the estimate), and is rejected when the field's norm
+- the magnetometer observes its heading only (``mag_mode = "heading"``, the default: no
+  field can tilt the estimate) or the field's direction (``"vector"``: it helps the tilt
+  too, and is not disturbed by linear acceleration), and is rejected when the field's norm
   or dip angle leaves its window around the values learnt from the accepted samples (a
   magnetic disturbance), or when its innovation fails the chi-square test at
   ``mag_gate``. After ``reacquire_s`` s of refusals (the field has changed for good, or
@@ -140,7 +140,8 @@ def _kernels() -> Any:
 
 class Mekf:
     """The multiplicative EKF (see module docstring). Feed it samples in time order with
-    :meth:`step`; read :attr:`q`, :attr:`bias`, :meth:`std_deg` and the counters."""
+    :meth:`step`; read :attr:`q`, :attr:`b` (the gyroscope's bias), :meth:`std_deg` and the
+    :attr:`counters`."""
 
     def __init__(self, ref: Reference, settings: MekfSettings | None = None) -> None:
         self.ref = ref
@@ -267,6 +268,7 @@ class Mekf:
         gate = self.mag_gate
         if reacquire:  # refused for long: the field changed for good, or the heading is wrong
             gate = math.inf
+            self._mag_refused_since = since = t  # one reopening per reacquire_s
             self.mag_norm = self.mag_dip = None
             u = self.ref_up_body()
             self.P[:3, :3] += np.outer(u, u) * math.pi**2

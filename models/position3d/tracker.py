@@ -28,8 +28,7 @@ as an axial coordinate:
   its sonars out), and one whose innovation fails the chi-square test at ``gate`` is
   rejected (cross-talk, a hand in the beam);
 - it starts once its sonars' first readings (within ``init_s``) determine a position
-  (:func:`.sonars.beam_points`), or at ``x0`` when given.
-
+  (:func:`.sonars.beam_points`), or at ``x0`` when given;
 - the published estimate is smoothed with the readings of the next ``lag`` s (a fixed-lag
   Rauch-Tung-Striebel smoother): it is ``lag`` s old when published, and instead of
   extrapolating each axis from its last reading (the sonars sound one at a time, an axis
@@ -231,7 +230,8 @@ class RangeTracker:
             F = self._F(dt)
             kf.predict(dt, Q=self._Q(dt))
             self.t = sample.t
-            self._history.append(_Step(sample.t, kf.x, kf.P, kf.x, kf.P, F))
+            x, P = kf.x.copy(), kf.P.copy()
+            self._history.append(_Step(sample.t, x, P, x, P, F))
         known = float(np.max(np.diag(kf.P)[:3])) <= self.beam_std**2
         if known and not sonar.in_beam(kf.x[:3], self.cos_beam):
             self.counts["beam_edge"] += 1
@@ -245,7 +245,8 @@ class RangeTracker:
         self.counts["fused"] += 1
         if self._history:  # the step's filtered state (same-time readings share a step)
             last = self._history[-1]
-            self._history[-1] = _Step(last.t, kf.x, kf.P, last.x_pred, last.P_pred, last.F)
+            x, P = kf.x.copy(), kf.P.copy()
+            self._history[-1] = _Step(last.t, x, P, last.x_pred, last.P_pred, last.F)
         self._prune()
         return True
 

@@ -44,9 +44,9 @@ def _tilted() -> dict:
     return out
 
 
-def test_sonars_at_arbitrary_poses_track_within_3_cm():
+def test_sonars_at_arbitrary_poses_track_within_2_cm():
     rmse = [run_position(seed, sonars=_tilted()).rmse_cm() for seed in range(3)]
-    assert max(rmse) <= 3.0, rmse
+    assert max(rmse) <= 2.0, rmse  # 1.24-1.39 over five seeds
     with pytest.raises(ValueError, match="not along an axis"):
         ThesisPosition(sonars={n: {"position": list(p), "direction": list(d)}
                                for n, (p, d) in _tilted().items()})  # fmt: skip
