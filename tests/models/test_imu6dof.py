@@ -70,3 +70,19 @@ def test_navigator_settings_are_checked():
         Navigator(q_jerk=0)
     assert Navigator(aiding=False).inputs == ("nav3",)
     assert Navigator().inputs == ("nav3", "position3d")
+
+
+def test_numba_and_numpy_backends_give_the_same_navigation():
+    from hera.estimation import active_backend, set_backend
+
+    was = active_backend()
+    try:
+        runs = {}
+        for backend in ("numpy", "numba"):
+            set_backend(backend)
+            r = run_imu6dof(4, duration=8.0)
+            runs[backend] = np.concatenate((r.est, r.std), axis=1)
+    finally:
+        set_backend(was)
+    assert runs["numpy"].shape == runs["numba"].shape
+    assert np.abs(runs["numpy"] - runs["numba"]).max() < 1e-9

@@ -135,3 +135,19 @@ def test_thesis_model_reads_each_sonar_as_its_axis():
         m.process(_reading("sonar_x", 0.2 + 0.05 * k, 1.95))
     assert m.estimate()[1][5] > big
     assert math.isclose(m.estimate()[1][3] ** 2, m.kf.P[0, 0])
+
+
+def test_numba_and_numpy_backends_give_the_same_track():
+    from hera.estimation import active_backend, set_backend
+
+    was = active_backend()
+    try:
+        runs = {}
+        for backend in ("numpy", "numba"):
+            set_backend(backend)
+            r = run_position(4, duration=15.0, down={"sonar_y": (10.0, 11.5)})
+            runs[backend] = np.concatenate((r.est, r.std), axis=1)
+    finally:
+        set_backend(was)
+    assert runs["numpy"].shape == runs["numba"].shape
+    assert np.abs(runs["numpy"] - runs["numba"]).max() < 1e-9
