@@ -135,7 +135,9 @@ def plot_positions(
     fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
     ts = np.unique(np.concatenate([s.t for s in have]))[::3]
     for i, (ax, col) in enumerate(zip(axes, POS, strict=True)):
-        ax.plot(ts - t0, [truth.at(float(t))[col] for t in ts], color="0.6", lw=3, label="truth")
+        true = [truth.at(float(t))[col] for t in ts]
+        ax.plot(ts - t0, true, color="0.6", lw=3, label="truth")
+        ax.set_ylim(min(true) - 0.15, max(true) + 0.15)  # not the models' first guesses
         for s in have:
             y = s.column(col)
             line = ax.plot(s.t - t0, y, lw=1, label=app.label(s.name, s.measure))[0]
@@ -152,9 +154,14 @@ def plot_positions(
     fig.savefig(files[0], dpi=100)
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(9, 4))
+    top = 0.0
     for s in have:
         d = 100 * np.linalg.norm(position_errors(s, truth), axis=1)
         ax.plot(s.t - t0, d, lw=1, label=app.label(s.name, s.measure))
+        late = d[s.t - s.t[0] >= 3.0]
+        top = max(top, float(np.percentile(late, 99)) if len(late) else 0.0)
+    if top > 0:
+        ax.set_ylim(0.0, 1.3 * top)
     ax.set_ylabel("distance to the truth [cm]")
     ax.set_xlabel("time since first estimate [s]")
     ax.grid(alpha=0.3)
