@@ -36,7 +36,9 @@ kinematics for the error-state Kalman filter", sections 5 and 7). Every function
   "considered", Schmidt 1966: their uncertainty is counted, they are not corrected; the
   Joseph form keeps P consistent with that gain). Noise ``(r_rel |m| / |m_h|)^2`` rad^2 (a
   relative field noise seen on the horizontal part). The field's norm and dip angle are
-  checked against a window first.
+  checked against a window first, and the heading innovation against a step window: a
+  field whose heading jumps while the gyroscope saw no turn is a disturbance, whatever
+  the filter's own (possibly wide) heading variance would let through.
 
 Updates use the Joseph form ``P = (I - K H) P (I - K H)^T + K R K^T``, then the error is
 injected, ``q <- q * Exp(dtheta)``, ``b <- b + db``, and ``q`` is normalised (the reset's
@@ -60,11 +62,12 @@ STATS = 17
 the observed vector in the reference frame, the last such vector (3), the exponential
 mean of its squared step from one sample to the next (1), and whether there was a last
 one (1)."""
-MAG_PARAMS = 12
+MAG_PARAMS = 14
 """``par`` of :func:`mag_update`: up (3), north (3), r_rel, the field's expected norm (0: no
 window) and relative tolerance, its expected dip angle and tolerance (rad; widened by three
-standard deviations of the filter's own tilt), and the mode (1: the field's direction as a
-vector, 0: its heading only)."""
+standard deviations of the filter's own tilt), the mode (1: the field's direction as a
+vector, 0: its heading only), and the step window of the heading innovation: its recent
+mean and the largest step from it (rad; inf: none)."""
 
 ACCEPTED, REJECTED, OUT_OF_WINDOW, UNUSABLE = 1.0, 0.0, -1.0, -2.0
 """Status written to ``out[1]`` of an update: fused, gated out by the chi-square test,
@@ -269,6 +272,9 @@ def mag_update(
             return
     alpha = math.atan2(float(up @ np.cross(north, mh)), float(north @ mh))
     out[4] = alpha
+    if abs(alpha - par[12]) > par[13]:  # the field's heading jumped: not the body's
+        out[0], out[1] = math.inf, OUT_OF_WINDOW
+        return
     if par[11] > 0.0 and par[7] > 0.0:  # the direction as a unit vector
         mref = math.cos(par[9]) * north - math.sin(par[9]) * up
         _vector_core(q, b, P, m / norm, R.T @ mref, 1.0, r_rel * r_rel * np.eye(3), gate, out)

@@ -332,6 +332,10 @@ def mag_update(q, b, P, mx, my, mz, par, gate, out):
     cz = nx * h1 - ny * h0
     alpha = math.atan2(ux * cx + uy * cy + uz * cz, nx * h0 + ny * h1 + nz * h2)
     out[4] = alpha
+    if abs(alpha - par[12]) > par[13]:  # the field's heading jumped: not the body's
+        out[0] = math.inf
+        out[1] = OUT_OF_WINDOW
+        return
     if par[11] > 0.0 and par[7] > 0.0:  # the direction as a unit vector
         cd, sd = math.cos(par[9]), math.sin(par[9])
         z = np.empty(3)
@@ -397,8 +401,9 @@ def compiled() -> SimpleNamespace:
     global _COMPILED
     if _COMPILED is None:
         q, b, P = np.array((1.0, 0.0, 0.0, 0.0)), np.zeros(3), np.eye(6) * 1e-4
-        par, stats, out = np.zeros(12), np.zeros(17), np.zeros(5)
+        par, stats, out = np.zeros(14), np.zeros(17), np.zeros(5)
         par[0:3] = (0.0, 0.0, 1.0)
+        par[13] = np.inf
         predict(q, b, P, 0.0, 0.0, 0.0, 0.01, np.zeros(3), 0.0)
         vector_update(q, b, P, 0.0, 0.0, 9.8, par, stats, 0.1, 1.0, out)
         mag_update(q, b, P, 0.0, 0.2, -0.4, par, 1.0, out)

@@ -20,10 +20,12 @@ whose observation is the quaternion the accelerometer and magnetometer give toge
   field can tilt the estimate) or the field's direction (``"vector"``: it helps the tilt
   too, and is not disturbed by linear acceleration), and is rejected when the field's norm
   or dip angle leaves its window around the values learnt from the accepted samples (a
-  magnetic disturbance), or when its innovation fails the chi-square test at
-  ``mag_gate``. After ``reacquire_s`` s of refusals (the field has changed for good, or
-  the heading is wrong) the next sample is taken whatever it says, the heading's variance
-  reopened, and the norm and dip are learnt again;
+  magnetic disturbance), when its heading innovation jumps away from its recent values by
+  more than ``mag_step_sigma`` times their jitter (a disturbance that keeps norm and dip,
+  while the filter's heading variance is wide, as in a shake), or when its innovation fails
+  the chi-square test at ``mag_gate``. After ``reacquire_s`` s of refusals (the field has
+  changed for good, or the heading is wrong) the next sample is taken whatever it says, the
+  heading's variance reopened, and the norm and dip are learnt again;
 - the filter starts with a coarse alignment (as an inertial navigator does): over the first
   ``align_s`` s the accelerometer and magnetometer samples are turned into the first
   sample's frame with the gyroscope and averaged; the attitude of the means (TRIAD, thesis
@@ -72,7 +74,9 @@ class MekfSettings:
     (the field's direction corrects tilt and heading) or ``"heading"`` (the heading only:
     no magnetic field can tilt the estimate, whatever gets past the gates); ``dip_deg``:
     the field's dip angle below the horizontal (deg; from a geomagnetic model: about 65 deg
-    in Belgium), or None to learn it with the norm.
+    in Belgium), or None to learn it with the norm; ``mag_step_sigma``: the step window of
+    the heading innovation, in standard deviations of its recent jitter (exponential over
+    ``step_tau`` s) and of the magnetometer's noise (0: none).
     """
 
     gyro_noise: float | tuple[float, float, float] = 5e-4
@@ -93,6 +97,8 @@ class MekfSettings:
     bias_std0: float = 0.01
     gyro_trapezoid: bool = True
     mag_mode: str = "heading"
+    mag_step_sigma: float = 5.0
+    step_tau: float = 1.0
     dip_deg: float | None = None
 
     def __post_init__(self) -> None:
@@ -105,7 +111,7 @@ class MekfSettings:
             object.__setattr__(self, "gyro_noise", tuple(float(v) for v in g))
         elif not (isinstance(g, (int, float)) and math.isfinite(g) and g > 0):
             raise ValueError(f"gyro_noise must be a number > 0 or 3 of them, got {g!r}")
-        for name in ("bias_walk", "acc_noise", "gravity", "mag_noise", "ext_tau"):
+        for name in ("bias_walk", "acc_noise", "gravity", "mag_noise", "ext_tau", "step_tau"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a number > 0, got {v!r}")
@@ -123,6 +129,7 @@ class MekfSettings:
             "reacquire_s",
             "align_s",
             "bias_std0",
+            "mag_step_sigma",
         ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
@@ -165,6 +172,9 @@ class Mekf:
         self.mag_par[8] = s.mag_norm_tol
         self.mag_par[10] = math.radians(s.mag_dip_tol_deg)
         self.mag_par[11] = 1.0 if s.mag_mode == "vector" else 0.0
+        self.mag_par[13] = math.inf  # no step window until the innovations are known
+        self._alpha_mean = 0.0  # heading innovations of accepted samples: mean, variance
+        self._alpha_var: float | None = None
         self.out = np.zeros(5)
         g = s.gyro_noise
         self._arw2 = tuple(float(x) ** 2 for x in (g if isinstance(g, (tuple, list)) else (g,) * 3))
@@ -278,6 +288,13 @@ class Mekf:
             par[9] = self.mag_dip if s.dip_deg is None else math.radians(s.dip_deg)
         else:
             par[7] = 0.0  # nothing learnt yet: any field
+        var = self._alpha_var
+        if reacquire or var is None or not s.mag_step_sigma:
+            par[13] = math.inf
+        else:  # the step window: a jump of the field's heading the noise cannot explain
+            r = s.mag_noise / max(math.cos(par[9]), 0.1) if learnt else s.mag_noise
+            par[12] = self._alpha_mean
+            par[13] = s.mag_step_sigma * math.sqrt(var + r * r)
         self.k.mag_update(self.q, self.b, self.P, mag[0], mag[1], mag[2], par, gate, out)
         status = out[1]
         if status == npk.ACCEPTED:
@@ -285,6 +302,14 @@ class Mekf:
             if reacquire:
                 self.counters["reacquired"] += 1
             self._mag_refused_since = None
+            alpha = float(out[4])
+            if reacquire or self._alpha_var is None:
+                self._alpha_mean, self._alpha_var = alpha, 0.0
+            else:
+                w = min(1.0, dt / s.step_tau) if dt > 0 else 0.0
+                d = alpha - self._alpha_mean
+                self._alpha_mean += w * d
+                self._alpha_var = (1.0 - w) * (self._alpha_var + w * d * d)
             if not learnt:
                 self.mag_norm, self.mag_dip = float(out[2]), float(out[3])
             else:

@@ -91,6 +91,8 @@ class AhrsModel(_Follow):
         gyro_trapezoid: bool = MekfSettings.gyro_trapezoid,
         mag_mode: str = MekfSettings.mag_mode,
         dip_deg: float | None = MekfSettings.dip_deg,
+        mag_step_sigma: float = MekfSettings.mag_step_sigma,
+        step_tau: float = MekfSettings.step_tau,
     ) -> None:
         super().__init__(board)
         settings = MekfSettings(
@@ -113,6 +115,8 @@ class AhrsModel(_Follow):
             gyro_trapezoid=gyro_trapezoid,
             mag_mode=mag_mode,
             dip_deg=dip_deg,
+            mag_step_sigma=mag_step_sigma,
+            step_tau=step_tau,
         )
         self.filter = Mekf(world_reference(north_deg), settings)
 

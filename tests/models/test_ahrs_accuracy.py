@@ -4,8 +4,10 @@ simulated Pmod NAV's samples in time order: bias, scale errors, drift, noise, so
 
 Targets (issue 11) with the worst seed measured (README "Attitude and heading"): mean
 attitude error <= 0.3 deg still (worst 0.13), <= 1 deg on rotation_slow (0.18), <= 3 deg on
-rotation_fast (0.17), <= 1 deg while shaking (0.80); a 10 s magnetic disturbance leaves the
-tilt as it was and the heading within 5 deg.
+rotation_fast (0.17), <= 1 deg while shaking (0.75); a 10 s magnetic disturbance leaves the
+tilt as it was and the heading within 5 deg (still, rotation_slow, shaking: worst 1.6 deg;
+on rotation_fast the gyroscope's scale error, unestimated, reaches 5.1 deg on one seed of
+five: README).
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ def test_the_thesis_filter_is_run_beside_it_and_fails_while_shaking():
         [0.0, -0.15, 0.25],  # a magnet: norm and dip far off
     ],
 )
-@pytest.mark.parametrize("scenario", ["still", "rotation_slow"])
+@pytest.mark.parametrize("scenario", ["still", "rotation_slow", "shaking"])
 def test_a_magnetic_disturbance_of_10_s_leaves_tilt_alone_and_heading_within_5_deg(scenario, field):
     on, off = 3.0 + 15.0, 3.0 + 25.0  # epoch times: 15 s into the run, for 10 s
     events = [
@@ -55,4 +57,4 @@ def test_a_magnetic_disturbance_of_10_s_leaves_tilt_alone_and_heading_within_5_d
     refused = hit.counters["mag_rejected"] + hit.counters["mag_disturbed"]
     assert refused >= 900, hit.counters
     after = hit.t >= off + 2.0
-    assert np.abs(hit.heading[after]).mean() < 0.5  # back to normal
+    assert np.abs(hit.heading[after]).mean() <= np.abs(clean.heading[after]).mean() + 0.3

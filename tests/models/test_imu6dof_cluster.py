@@ -73,6 +73,7 @@ def _rmse_cm(err: np.ndarray) -> float:
 def test_the_node_came_back_within_seconds(killed_run):
     run, t_kill = killed_run
     kill, back = _windows(run, t_kill)
+    print(f"sonar_z gone for {back - kill:.2f} s")  # pytest -s: the README's figures
     assert 0.2 < back - kill < 3.0, back - kill
 
 
@@ -100,6 +101,12 @@ def test_position_meets_its_targets_through_the_loss_of_a_sonar(killed_run):
         z_before = float(np.median(std[before, 2]))
         assert std[gone, 2].max() >= 2.0 * z_before, (s.node, std[gone, 2].max(), z_before)
         assert _rmse_cm(err[after]) <= 2.0, (s.node, _rmse_cm(err[after]))
+        print(
+            f"{s.node}: RMSE before {_rmse_cm(err[before]):.2f} cm, x/y RMS while gone "
+            f"{100 * observed[0]:.2f}/{100 * observed[1]:.2f} cm, std z "
+            f"{100 * z_before:.1f} -> {100 * std[gone, 2].max():.1f} cm, RMSE from 2 s after "
+            f"its return {_rmse_cm(err[after]):.2f} cm"
+        )
         assert float(np.median(std[after, 2])) <= 1.5 * z_before
     assert seen == len(POSITION_NODES)
 
