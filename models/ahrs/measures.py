@@ -17,8 +17,9 @@ class Ahrs(FusionMeasure):
 
 
 class AhrsThesis(FusionMeasure):
-    """``attitude_thesis`` (thesis e11): attitude and heading from ``nav3``, the thesis's
-    quaternion Kalman filter."""
+    """``attitude_thesis`` (thesis e11): attitude and heading from ``nav3``.
+
+    The thesis's quaternion Kalman filter (eqs. 7.1-7.5)."""
 
     name = "attitude_thesis"
     period = 0.05

@@ -9,8 +9,10 @@ from hera.models.imu6dof.navigator import Navigator
 
 
 class Imu6dof(FusionMeasure):
-    """``imu6dof`` (thesis e13): position, velocity, linear acceleration and attitude from
-    ``nav3``, with the sonars' position (``position3d``) when there is one."""
+    """``imu6dof`` (thesis e13): position and attitude from ``nav3`` and the sonars.
+
+    Velocity and linear acceleration too; the sonars' position (``position3d``) bounds the
+    inertial drift."""
 
     name = "imu6dof"
     period = 0.05
@@ -20,7 +22,7 @@ class Imu6dof(FusionMeasure):
 
 
 class Imu6dofInertial(FusionMeasure):
-    """``imu6dof_inertial``: the same from ``nav3`` alone (its position drifts)."""
+    """``imu6dof_inertial``: e13 from ``nav3`` alone (its position drifts)."""
 
     name = "imu6dof_inertial"
     period = 0.05

@@ -9,8 +9,9 @@ from hera.models.position3d.tracker import RangeTracker
 
 
 class Position3d(FusionMeasure):
-    """``position3d``: the target's position and velocity from the raw ranges of sonars at
-    any pose, with standard deviations (our EKF)."""
+    """``position3d``: the target's position from the sonars' raw ranges (our EKF).
+
+    Sonars at any pose; velocity and standard deviations published too."""
 
     name = "position3d"
     period = 0.05
@@ -19,8 +20,9 @@ class Position3d(FusionMeasure):
 
 
 class Position3dThesis(FusionMeasure):
-    """``position3d_thesis`` (thesis e10): the position from three axis-aligned sonars, the
-    thesis's linear Kalman filter."""
+    """``position3d_thesis`` (thesis e10): the position from three axis-aligned sonars.
+
+    The thesis's linear Kalman filter (eq. 7.6)."""
 
     name = "position3d_thesis"
     period = 0.05
