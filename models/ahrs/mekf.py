@@ -87,7 +87,7 @@ class MekfSettings:
     mag_noise: float = 0.01
     acc_gate: float = 0.9999
     mag_gate: float = 0.9999
-    ext_tau: float = 1.0
+    ext_tau: float = 0.5
     ext_kappa_max: float = 100.0
     mag_norm_tol: float = 0.08
     mag_dip_tol_deg: float = 4.0

@@ -2,9 +2,10 @@
 and under a magnetic disturbance, offline (the model objects the live measures run, fed the
 simulated Pmod NAV's samples in time order: bias, scale errors, drift, noise, soft iron).
 
-Targets (issue 11) with the worst seed measured (README "Attitude and heading"): mean
-attitude error <= 0.3 deg still (worst 0.13), <= 1 deg on rotation_slow (0.18), <= 3 deg on
-rotation_fast (0.17), <= 1 deg while shaking (0.75); a 10 s magnetic disturbance leaves the
+Targets (issue 11) with the worst run measured over 3 seeds x 3 start phases (README
+"Attitude and heading"): mean attitude error <= 0.3 deg still (worst 0.13), <= 1 deg on
+rotation_slow (0.11), <= 3 deg on rotation_fast (0.15), <= 1 deg while shaking (0.99: the
+thinnest margin; the start phase of the shake matters); a 10 s magnetic disturbance leaves the
 tilt as it was and the heading within 5 deg (still, rotation_slow, shaking: worst 1.6 deg;
 on rotation_fast the gyroscope's scale error, unestimated, reaches 5.1 deg on one seed of
 five: README).
@@ -16,13 +17,18 @@ import numpy as np
 import pytest
 from sim3d import run_ahrs
 
-SEEDS = range(5)
 TARGETS = {"still": 0.3, "rotation_slow": 1.0, "rotation_fast": 3.0, "shaking": 1.0}
 
 
 @pytest.mark.parametrize("scenario", list(TARGETS))
-def test_mean_attitude_error_meets_the_target_on_every_seed(scenario):
-    means = [run_ahrs(scenario, seed).att.mean() for seed in SEEDS]
+def test_mean_attitude_error_meets_the_target_on_every_seed_and_start(scenario):
+    """3 seeds of the board (as node nav_1 of deploy/ahrs.toml) x 3 moments the filter
+    starts at (the phase of the motion when it aligns)."""
+    means = [
+        run_ahrs(scenario, seed, start=start, node="nav_1").att.mean()
+        for seed in range(3)
+        for start in (3.0, 8.0, 13.0)
+    ]
     assert max(means) <= TARGETS[scenario], (scenario, np.round(means, 3))
 
 

@@ -58,11 +58,14 @@ def run_ahrs(
     events: Sequence[Event] = (),
     world: dict | None = None,
     after: float = 3.0,
+    start: float = 3.0,
+    node: str = "nav",
 ) -> AttitudeRun:
-    """Our AHRS (or the thesis's) over ``duration`` s of ``nav3`` from 3 s after the epoch;
-    errors (deg) from ``after`` s past its first estimate."""
+    """Our AHRS (or the thesis's) over ``duration`` s of ``nav3`` from ``start`` s after the
+    epoch (the board of node ``node``); errors (deg) from ``after`` s past its first
+    estimate."""
     w = {"scenario": scenario, "epoch": 0.0, **(world or {})}
-    stream = nav3_stream(w, duration, seed=seed, start=3.0, events=events)
+    stream = nav3_stream(w, duration, seed=seed, start=start, node=node, events=events)
     f = ThesisAhrs(world_reference(90.0)) if thesis else Mekf(world_reference(90.0), settings)
     t, q = [], []
     for s in stream.samples:
