@@ -2,10 +2,10 @@
 
 An *application* bundles what one use of the framework needs beyond the runtime: its
 measures and fusion models, the truth of its simulated world, how to score a run, its plots,
-its rows of the live panel of ``hera up``, and any control verbs it adds. The train ladder
-is one; a user's own package can be another. The runtime finds applications through the
-entry-point group ``hera.apps`` and asks them through this interface only; it never names
-one.
+its rows of the live panel of ``hera up``, its view on the web page (:class:`WebPanel`), and
+any control verbs it adds. The train ladder is one; a user's own package can be another.
+The runtime finds applications through the entry-point group ``hera.apps`` and asks them
+through this interface only; it never names one.
 
 Write one by subclassing :class:`Application`: set :attr:`~Application.name` and
 :attr:`~Application.measures`, and override the methods that apply (every one is optional,
@@ -140,6 +140,39 @@ class Panel:
     rows: tuple[tuple[str, ...], ...] = ()
 
 
+WEB_PANEL_KINDS = ("plane", "attitude", "grid")
+
+
+@dataclass(frozen=True)
+class WebPanel:
+    """A view an application adds to the live web page (``hera view``, ``hera up --web``):
+    data the page draws by ``kind``, the same way for every application. ``data`` is
+    JSON-able; lengths in metres, angles in radians:
+
+    - ``"plane"``: a 2-D scene seen from above. ``shapes``: ``{"circle": [cx, cy, r]}`` or
+      ``{"line": [[x, y], ...]}``, each with an optional ``"label"``; ``points``:
+      ``{"label", "x", "y"}`` with an optional ``"heading"`` (an arrow) and ``"truth":
+      true`` (drawn as the reference). The page keeps a short trail per label.
+    - ``"attitude"``: ``bodies``: ``{"label", "roll", "pitch", "yaw"}`` (an artificial
+      horizon and a compass each), an optional ``"truth": true``.
+    - ``"grid"``: a heat map: ``values`` (rows of numbers, None for unknown; row i spans
+      y0 + i cell .. y0 + (i + 1) cell, column j likewise in x), ``origin`` ``[x0, y0]``
+      (the lower-left corner of cell [0][0]), ``cell`` (its size), optional ``min``/``max``
+      (the colour scale) and ``points`` as for ``plane``.
+    """
+
+    title: str
+    kind: str
+    data: Mapping[str, Any]
+
+    def __post_init__(self) -> None:
+        if self.kind not in WEB_PANEL_KINDS:
+            raise ValueError(
+                f"web panel {self.title!r}: kind must be one of {', '.join(WEB_PANEL_KINDS)}, "
+                f"got {self.kind!r}"
+            )
+
+
 @dataclass
 class VerbContext:
     """What a control verb of an application may use on the node that runs it."""
@@ -198,6 +231,12 @@ class Application:
 
     def panel(self, estimates: Sequence[Estimate], truth: Truth | None) -> Panel | None:
         """Its rows of the live view of ``hera up`` for the latest estimates of its models."""
+        return None
+
+    def web_panel(self, estimates: Sequence[Estimate], truth: Truth | None) -> WebPanel | None:
+        """Its view on the live web page for the latest estimates of its models (a track,
+        an attitude, a heat map: see :class:`WebPanel`); the page also plots every stream
+        and every model's columns next to the truth without it."""
         return None
 
     def check_world(self, world: Mapping[str, Any]) -> list[str]:

@@ -10,6 +10,8 @@ itself because it connects out to everyone it knows.
 from __future__ import annotations
 
 import json
+import os
+import tempfile
 from dataclasses import dataclass, field
 
 import zenoh
@@ -33,6 +35,9 @@ class BusConfig:
     lease_ms: int = DEFAULT_LEASE_MS
     mode: str = "peer"
     extra: dict = field(default_factory=dict)
+    dictionary: str | None = field(default=None, repr=False)
+    """User/password authentication: the ``user:password`` lines this process checks the
+    others against (written to a private file only while the session opens)."""
 
     def __post_init__(self) -> None:
         if self.mode not in ("peer", "router", "client"):
@@ -58,9 +63,30 @@ class BusConfig:
         return cfg
 
 
+_LOGGING = False
+
+
 def open_session(config: BusConfig) -> zenoh.Session:
-    """Open a Zenoh session; the caller must close it (``with`` or ``try/finally``)."""
-    return zenoh.open(config.to_zenoh())
+    """Open a Zenoh session; the caller must close it (``with`` or ``try/finally``).
+
+    With ``RUST_LOG`` set (e.g. ``RUST_LOG=zenoh=debug``), Zenoh's own log goes to stderr
+    (the node's log file): what its links and routing do, for debugging."""
+    global _LOGGING
+    if not _LOGGING and os.environ.get("RUST_LOG"):
+        zenoh.init_log_from_env_or("error")
+        _LOGGING = True
+    cfg = config.to_zenoh()
+    if config.dictionary is None:
+        return zenoh.open(cfg)
+    # Zenoh reads the dictionary when the session opens (verified by a test): it lives in a
+    # file only this user can read, removed as soon as the session is open
+    with tempfile.TemporaryDirectory(prefix="hera-auth-") as folder:
+        path = os.path.join(folder, "dictionary")
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        with os.fdopen(fd, "w") as f:
+            f.write(config.dictionary)
+        cfg.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(path))
+        return zenoh.open(cfg)
 
 
 def query_all(

@@ -3,65 +3,174 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import importlib
 import json
 import logging
 import sys
 import time
 
+from hera import tools
 from hera.client import ClusterClient, find_run_dir, pid_alive
 
-BENCHES = ("ahrs", "bus", "kalman", "sync")
+BENCHES = ("bus", "kalman", "sync", "scale", "console", "tilt", "ahrs")
+
+
+HELP_EXAMPLES = {
+    "up": "hera up train",
+    "node": "hera node deploy/train.toml --node sonar_1",
+    "router": "hera router deploy/two_hosts.toml --name r_a",
+    "status": "hera status nav_1",
+    "down": "hera down --cluster train",
+    "inject": "hera inject n3 crash obs1",
+    "measures": "hera measures track_radius",
+    "apps": "hera apps",
+    "examples": "hera examples",
+    "replay": "hera replay hera-run/train --out replayed --models e7,e8",
+    "eval": "hera eval hera-run/train",
+    "bench": "hera bench kalman --quick",
+    "certs": "hera certs deploy/two_hosts.toml --out certs",
+    "start": "start with:\n  hera up train            a cluster, its live view\n"
+    "  hera eval hera-run/train score the run",
+}
+"""Examples shown by ``hera --help`` and each subcommand's help (documentation: they may
+name the example specs shipped in ``hera.deploy``)."""
+
+
+def _command(sub, name: str, summary: str, example: str) -> argparse.ArgumentParser:
+    """A subcommand with its one-line summary (``hera --help``) and an example."""
+    return sub.add_parser(
+        name,
+        help=summary,
+        description=summary[0].upper() + summary[1:] + ".",
+        epilog=f"example:\n  {example}",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="hera", description=__doc__)
-    sub = p.add_subparsers(dest="cmd", required=True)
+    p = argparse.ArgumentParser(
+        prog="hera",
+        description="Hera: distributed, fault-tolerant sensor fusion on Eclipse Zenoh.",
+        epilog=HELP_EXAMPLES["start"],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = p.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
 
-    up = sub.add_parser("up", help="start every node of a spec and keep them running")
+    up = _command(
+        sub, "up", "start every node of a spec and keep them running", HELP_EXAMPLES["up"]
+    )
     up.add_argument("spec", help="cluster spec (TOML file, or an example's name: hera examples)")
     up.add_argument("--duration", type=float, help="stop after this many seconds")
     up.add_argument(
-        "--run-dir", help="where logs, state and recordings go (default hera-run/<cluster>)"
+        "--run-dir",
+        help="where logs and recordings go (default: a new hera-run/<cluster>-<time>, "
+        "linked from hera-run/<cluster>)",
     )
+    up.add_argument("--overwrite", action="store_true", help="replace a previous run in --run-dir")
     up.add_argument("--interval", type=float, default=1.0, help="status refresh period, s")
+    up.add_argument(
+        "--only",
+        help="comma-separated nodes and routers to run on this host (default: all of them)",
+    )
+    cert_help = "folder made by 'hera certs' (its certificates, or its cluster secret)"
+    up.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
+    up.add_argument(
+        "--web",
+        nargs="?",
+        type=int,
+        const=8765,
+        metavar="PORT",
+        help="serve the live web view on 127.0.0.1:PORT (default 8765; 0: any free port)",
+    )
+    up.add_argument("--mcap", metavar="OUT", help="record every sample live to an MCAP file")
 
-    node = sub.add_parser("node", help="run one node of a spec (hera up does this for you)")
-    node.add_argument("spec", help="cluster spec (TOML) or resolved cluster.json")
+    node = _command(
+        sub,
+        "node",
+        "run one node of a spec yourself (hera up does this for you)",
+        HELP_EXAMPLES["node"],
+    )
+    node.add_argument("spec", help="cluster spec (TOML, an example's name, or a cluster.json)")
     node.add_argument("--node", required=True, help="name of the node to run")
-    node.add_argument("--run-dir", help="run directory for state and logs")
+    node.add_argument("--run-dir", help="run directory for logs and recordings")
+    node.add_argument("--state-dir", help="where the node persists its args (calibrations)")
     node.add_argument("--parent-pid", type=int, help="stop when this process is gone")
     node.add_argument("--log-level", default="INFO")
+    node.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
 
-    for name, text in (
-        ("status", "show the status of a running cluster"),
-        ("down", "stop a running cluster"),
-    ):
-        s = sub.add_parser(name, help=text)
-        s.add_argument("--run-dir", help="run directory of the cluster")
-        s.add_argument("--cluster", help="name of the cluster, if several run")
-        if name == "status":
-            s.add_argument("--json", action="store_true", help="print JSON")
+    rt = _command(
+        sub,
+        "router",
+        "run one Zenoh router of a spec (hera up runs the ones it is asked to)",
+        HELP_EXAMPLES["router"],
+    )
+    rt.add_argument("spec", help="cluster spec (TOML, an example's name, or a cluster.json)")
+    rt.add_argument("--name", required=True, help="name of the router to run")
+    rt.add_argument("--parent-pid", type=int, help="stop when this process is gone")
+    rt.add_argument("--log-level", default="INFO")
+    rt.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
 
-    inj = sub.add_parser("inject", help="inject a fault into a running cluster")
+    ce = _command(
+        sub,
+        "certs",
+        "make a cluster CA, a certificate per node, router and operator, and the secret",
+        HELP_EXAMPLES["certs"],
+    )
+    ce.add_argument(
+        "spec", help="cluster spec (its nodes' and routers' hosts name the certificates)"
+    )
+    ce.add_argument("--out", required=True, metavar="DIR", help="folder to write them to")
+
+    st = _command(
+        sub,
+        "status",
+        "show a running cluster (or the details of one node)",
+        HELP_EXAMPLES["status"],
+    )
+    st.add_argument("node", nargs="?", help="a node: every detail of its status")
+    st.add_argument("--json", action="store_true", help="print JSON")
+    dn = _command(sub, "down", "stop a running cluster", HELP_EXAMPLES["down"])
+    inj = _command(sub, "inject", "inject a fault into a running cluster", HELP_EXAMPLES["inject"])
     inj.add_argument("node", help="target node")
     inj.add_argument("fault", help="crash | hang | crash_node | stop | start")
     inj.add_argument("measure", nargs="?", help="target measure (crash, hang, stop, start)")
-    inj.add_argument("--run-dir")
-    inj.add_argument("--cluster")
+    for s in (st, dn, inj):
+        s.add_argument("--run-dir", help="run directory of the cluster (on this host)")
+        s.add_argument("--cluster", help="name of the cluster, if several run")
+        s.add_argument(
+            "--connect",
+            action="append",
+            metavar="ENDPOINT",
+            help="reach the cluster through this node or router (e.g. tcp/10.0.0.2:7447), "
+            "from any host: no run directory needed (repeatable)",
+        )
+        s.add_argument(
+            "--cert",
+            metavar="DIR",
+            help="with --connect: the operator's credentials, a folder made by 'hera certs' "
+            "(default: those of the cluster run from this host)",
+        )
 
-    ms = sub.add_parser("measures", help="list the installed measures, or show one")
+    ms = _command(
+        sub, "measures", "list the installed measures, or show one", HELP_EXAMPLES["measures"]
+    )
     ms.add_argument("name", nargs="?", help="a measure: show its columns and arguments")
-    sub.add_parser("apps", help="list the installed applications")
-    sub.add_parser("examples", help="list the example specs (hera up NAME runs one)")
+    _command(sub, "apps", "list the installed applications", HELP_EXAMPLES["apps"])
+    _command(
+        sub, "examples", "list the example specs (hera up NAME runs one)", HELP_EXAMPLES["examples"]
+    )
 
-    rp = sub.add_parser("replay", help="run fusion models offline over recordings")
+    rp = _command(
+        sub,
+        "replay",
+        "run fusion models offline over recordings",
+        HELP_EXAMPLES["replay"],
+    )
     rp.add_argument("recordings", help="a run dir or a folder of <name>_<node>.csv files")
     rp.add_argument("--out", required=True, help="where to write <model>_<node>.csv")
-    rp.add_argument("--models", help="comma-separated model names (default: the spec's)")
+    rp.add_argument("--models", help="comma-separated model names or aliases (default: all)")
     rp.add_argument(
-        "--spec", help="spec giving the models' parameters (default: the recordings' cluster.json)"
+        "--spec", help="spec giving the models' settings (default: the recordings' cluster.json)"
     )
     rp.add_argument("--node", default="replay", help="node name of the outputs")
     rp.add_argument(
@@ -71,13 +180,15 @@ def _parser() -> argparse.ArgumentParser:
         "estimates at the live estimates' instants (to compare a replay with a live node)",
     )
 
-    ev = sub.add_parser("eval", help="score a run's estimates against the truth")
+    ev = _command(
+        sub, "eval", "score a run through its applications, with plots", HELP_EXAMPLES["eval"]
+    )
     ev.add_argument("run_dir")
     ev.add_argument(
         "--settle",
         type=float,
         default=10.0,
-        help="s before position/radius errors count (default 10)",
+        help="s after a model's first estimate before settled errors count (default 10)",
     )
     ev.add_argument(
         "--after",
@@ -92,7 +203,9 @@ def _parser() -> argparse.ArgumentParser:
     ev.add_argument("--node", help="node whose models are plotted (default: the first)")
     ev.add_argument("--json", action="store_true", help="print JSON")
 
-    b = sub.add_parser("bench", help="run a benchmark: " + ", ".join(BENCHES))
+    tools.add_parsers(sub, _command)
+
+    b = _command(sub, "bench", "run a benchmark: " + ", ".join(BENCHES), HELP_EXAMPLES["bench"])
     b.add_argument("name", choices=BENCHES)
     b.add_argument("rest", nargs=argparse.REMAINDER, help="options of that benchmark")
     return p
@@ -115,19 +228,46 @@ def _dispatch(args: argparse.Namespace) -> int:
         from hera.node import run_node
         from hera.preflight import check_spec
 
-        spec = check_spec(_load(args.spec))
+        spec = check_spec(_load(args.spec, args.cert))
         spec.node(args.node)  # an unknown node is a bad command line, before any logging
+        spec = _lone_secret(spec, args.run_dir)
         logging.basicConfig(
             level=args.log_level.upper(),
             format=f"%(asctime)s {args.node} %(name)s %(levelname)s %(message)s",
         )
-        return run_node(spec, args.node, args.run_dir, args.parent_pid)
+        return run_node(spec, args.node, args.run_dir, args.parent_pid, args.state_dir)
     if args.cmd == "up":
         from hera.examples import resolve_spec
         from hera.launcher import Launcher
 
         spec = resolve_spec(args.spec)
-        return Launcher(spec, args.run_dir, args.duration, interval=args.interval).run()
+        only = [x.strip() for x in args.only.split(",") if x.strip()] if args.only else None
+        launcher = Launcher(
+            spec,
+            args.run_dir,
+            args.duration,
+            interval=args.interval,
+            overwrite=args.overwrite,
+            only=only,
+            cert=args.cert,
+            web=args.web,
+            mcap=args.mcap,
+        )
+        return launcher.run()
+    if args.cmd == "router":
+        from hera.router import run_router
+
+        spec = _load(args.spec, args.cert)
+        spec.router(args.name)
+        logging.basicConfig(
+            level=args.log_level.upper(),
+            format=f"%(asctime)s {args.name} %(name)s %(levelname)s %(message)s",
+        )
+        return run_router(spec, args.name, args.parent_pid)
+    if args.cmd == "certs":
+        return _certs(args)
+    if args.cmd in tools.COMMANDS:
+        return tools.run(args)
     if args.cmd == "status":
         return _status(args)
     if args.cmd == "down":
@@ -161,12 +301,58 @@ def _dispatch(args: argparse.Namespace) -> int:
     raise AssertionError(args.cmd)
 
 
-def _load(spec_arg: str):
-    """The spec a command line names (a file, or an example's name)."""
+def _load(spec_arg: str, cert: str | None = None):
+    """The spec a command line names (a file, or an example's name), with ``--cert``."""
+    from pathlib import Path
+
     from hera.examples import resolve_spec
     from hera.spec import load_spec
 
-    return load_spec(resolve_spec(spec_arg))
+    spec = load_spec(resolve_spec(spec_arg))
+    return spec if cert is None else spec.with_security(certs=str(Path(cert).resolve()))
+
+
+def _lone_secret(spec, run_dir: str | None):
+    """A node run by hand with authentication on and no credentials (no ``--cert``, no
+    ``[security] certs``, not a ``hera up`` cluster.json) makes its own secret: in its run
+    directory, else in a private temporary folder removed at exit. It can join no other
+    node, which is what it says in its log."""
+    import atexit
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    from hera.security.secret import SECRET_FILE, make_secret
+
+    if not spec.auth or spec.tls or spec.certs or spec.secret:
+        return spec
+    if run_dir is not None:
+        folder = Path(run_dir)
+    else:
+        folder = Path(tempfile.mkdtemp(prefix="hera-node-"))
+        atexit.register(shutil.rmtree, folder, True)
+    path = folder / SECRET_FILE
+    if not path.exists():
+        make_secret(path)
+    logging.getLogger("hera.node").warning(
+        "no cluster credentials given: this node made its own secret (%s) and can join no "
+        "other node; give --cert DIR (made by 'hera certs') to join a cluster",
+        path,
+    )
+    return spec.with_security(secret=str(path.resolve()))
+
+
+def _certs(args: argparse.Namespace) -> int:
+    from hera.security.certs import make_certs
+    from hera.security.credentials import cert_hosts
+
+    spec = _load(args.spec)
+    written = make_certs(args.out, spec.name, cert_hosts(spec))
+    print(f"cluster {spec.name}: CA {args.out}/ca.pem (keep ca.key off the cluster's hosts)")
+    for path in written:
+        print(f"  {path}")
+    print(f"  {args.out}/secret (the cluster secret, for links without TLS)")
+    return 0
 
 
 def _measures(args: argparse.Namespace) -> int:
@@ -200,23 +386,64 @@ def _measures(args: argparse.Namespace) -> int:
     return 0
 
 
-def _status(args: argparse.Namespace) -> int:
-    from hera.statusview import render_status
+def _client(args: argparse.Namespace) -> ClusterClient:
+    """The cluster a tool command talks to: through ``--connect`` endpoints (any host), or
+    the one registered on this host (``--run-dir``, ``--cluster``, or the only one)."""
+    if args.connect:
+        return ClusterClient.connect(
+            args.connect, args.cluster, credentials=_tool_credentials(args)
+        )
+    return ClusterClient.from_run_dir(find_run_dir(args.run_dir, args.cluster))
 
-    run_dir = find_run_dir(args.run_dir, args.cluster)
-    launcher = {}
-    with contextlib.suppress(OSError, ValueError, KeyError):
-        launcher = json.loads((run_dir / "launcher.json").read_text())["nodes"]
-    with ClusterClient.from_run_dir(run_dir) as client:
+
+def _tool_credentials(args: argparse.Namespace):
+    """The operator's credentials of a tool run with ``--connect``: from ``--cert DIR``, else
+    those of the cluster this host runs (``--run-dir``, ``--cluster`` or the only one)."""
+    from hera.security.access import OPERATOR
+    from hera.security.credentials import for_operator, for_spec
+    from hera.spec import load_spec
+
+    if args.cert:
+        return for_operator(args.cert, args.connect)
+    try:
+        run_dir = find_run_dir(args.run_dir, args.cluster)
+    except LookupError:
+        raise LookupError(
+            "--connect needs the operator's credentials: give --cert DIR (a folder made by "
+            "'hera certs'), or run it on a host that runs the cluster"
+        ) from None
+    return for_spec(load_spec(run_dir / "cluster.json"), OPERATOR)
+
+
+def _status(args: argparse.Namespace) -> int:
+    from hera.client import running_clusters
+    from hera.statusview import render_node, render_status
+
+    if not (args.connect or args.run_dir or args.cluster) and len(running_clusters()) > 1:
+        print("clusters running (pick one with --cluster NAME or --run-dir DIR):")
+        for c in running_clusters():
+            print(f"  {c['cluster']:<16} launcher {c['launcher_pid']:<8} {c['run_dir']}")
+        return 0
+    with _client(args) as client:
+        if args.node is not None:
+            if client.spec is not None:
+                client.spec.node(args.node)  # an unknown node lists the known ones
+            reply = client.query(args.node, "status", timeout=1.0).get(args.node)
+            if reply is None:
+                print(f"hera status: node {args.node!r} did not answer", file=sys.stderr)
+                return 1
+            print(json.dumps(reply, indent=1) if args.json else render_node(reply))
+            return 0
         status = client.status(timeout=1.0)
+        launched = client.launched()
         if args.json:
             print(
                 json.dumps(
-                    {"cluster": client.spec.name, "nodes": status, "launcher": launcher}, indent=1
+                    {"cluster": client.cluster, "nodes": status, "launcher": launched}, indent=1
                 )
             )
         else:
-            print(render_status(client.spec.name, status, launcher, run_dir=str(run_dir)))
+            print(render_status(client.cluster, status, launched))
     return 0 if status else 1
 
 
@@ -224,6 +451,8 @@ def _down(args: argparse.Namespace) -> int:
     import os
     import signal
 
+    if args.connect:
+        return _down_over_the_bus(args)
     run_dir = find_run_dir(args.run_dir, args.cluster)
     pid = json.loads((run_dir / "launcher.json").read_text())["launcher_pid"]
     if not pid_alive(pid):
@@ -240,13 +469,37 @@ def _down(args: argparse.Namespace) -> int:
     return 0
 
 
+def _down_over_the_bus(args: argparse.Namespace) -> int:
+    """Stop a cluster from any host: the nodes no launcher runs (started by hand) get
+    ``shutdown``, then every launcher on the bus is asked at once to stop what it runs
+    (the ones that run routers last: the others' requests travel through them)."""
+    with _client(args) as client:
+        launchers = client.launchers(timeout=2.0)
+        launched = {n for st in launchers.values() for n in st.get("nodes", {})}
+        for node in sorted(set(client.status(timeout=1.0)) - launched):
+            client.query(node, "shutdown", timeout=1.0)
+        order = sorted(launchers, key=lambda lid: bool(launchers[lid].get("routers")))
+        pending = [
+            (lid, client.session.get(client.keys.launcher(lid, "down"), timeout=3.0))
+            for lid in order
+        ]  # every request is on its way before the first launcher stops its routers
+        stopping = [lid for lid, replies in pending if any(r.ok for r in replies)]
+    missing = sorted(set(launchers) - set(stopping))
+    if missing:
+        print(f"hera down: launchers {missing} did not answer", file=sys.stderr)
+        return 1
+    print(f"cluster {client.cluster}: {len(stopping)} launchers stopping ({', '.join(stopping)})")
+    return 0
+
+
 def _inject(args: argparse.Namespace) -> int:
-    run_dir = find_run_dir(args.run_dir, args.cluster)
     if args.fault in ("stop", "start"):
         verb, request = args.fault, {"measure": args.measure}
     else:
         verb, request = "inject", {"fault": args.fault, "measure": args.measure}
-    with ClusterClient.from_run_dir(run_dir) as client:
+    with _client(args) as client:
+        if client.spec is not None:
+            client.spec.node(args.node)  # an unknown node lists the known ones
         replies = client.query(args.node, verb, request)
     if args.node not in replies:
         print(f"hera inject: node {args.node!r} did not answer", file=sys.stderr)
@@ -277,7 +530,10 @@ def _replay(args: argparse.Namespace) -> int:
         like = live_schedule(args.recordings, args.start_like)
         if not like:
             raise ValueError(f"no live estimates of node {args.start_like!r} in the recordings")
-    counts = replay(args.recordings, args.out, chosen, args.node, like)
+    from hera.progress import Progress
+
+    with Progress("replay") as progress:
+        counts = replay(args.recordings, args.out, chosen, args.node, like, progress)
     for name, n in counts.items():
         print(f"{name:<20} {n:>7} estimates -> {Path(args.out) / 'measures'}")
     return 0
@@ -292,7 +548,10 @@ def _eval(args: argparse.Namespace) -> int:
 
     options = EvalOptions(after=args.after, settle=args.settle)
     index = AppIndex()
-    results = evaluate(args.run_dir, options, index)
+    from hera.progress import Progress
+
+    with Progress("eval") as progress:
+        results = evaluate(args.run_dir, options, index, progress)
     if not results:
         raise ValueError(f"{args.run_dir}: no model outputs to score (no fusion model logged)")
     if args.json:

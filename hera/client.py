@@ -1,8 +1,9 @@
 """A tool's view of a running cluster: find it, join its bus, query status, send control.
 
 ``hera up`` writes ``<run-dir>/cluster.json`` (the resolved spec: ports, world epoch) and
-registers the cluster in a per-user directory (:func:`registry_dir`) with the launcher's pid,
-so ``hera status`` and ``hera down`` find it from another terminal.
+registers the cluster in a per-user directory (:func:`registry_dir`), one entry per running
+launcher (``<cluster>-<pid>.json``), so ``hera status`` and ``hera down`` find every running
+cluster from another terminal, two runs of one spec included.
 """
 
 from __future__ import annotations
@@ -11,11 +12,14 @@ import contextlib
 import json
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from hera.bus import BusConfig, open_session, query_all
 from hera.keys import Keys
+from hera.security.access import OPERATOR
+from hera.security.credentials import Credentials, secured
 from hera.spec import ClusterSpec, load_spec
 
 
@@ -55,7 +59,8 @@ def running_clusters() -> list[dict[str, Any]]:
 
 
 def find_run_dir(run_dir: str | None, cluster: str | None) -> Path:
-    """The run directory to talk to: the one given, or the only running cluster (by name)."""
+    """The run directory to talk to: the one given, or the only running cluster (of that
+    name); LookupError saying which ones run otherwise."""
     if run_dir:
         return Path(run_dir)
     found = [c for c in running_clusters() if cluster in (None, c["cluster"])]
@@ -66,25 +71,131 @@ def find_run_dir(run_dir: str | None, cluster: str | None) -> Path:
             + "; start one with 'hera up SPEC' or give --run-dir"
         )
     if len(found) > 1:
-        names = ", ".join(c["cluster"] for c in found)
-        raise LookupError(f"several clusters are running ({names}); pick one with --cluster")
+        where = ", ".join(f"{c['cluster']} in {c['run_dir']}" for c in found)
+        pick = "--run-dir DIR" if cluster else "--cluster NAME or --run-dir DIR"
+        raise LookupError(f"{len(found)} clusters are running ({where}): pick one with {pick}")
     return Path(found[0]["run_dir"])
 
 
-class ClusterClient:
-    """A peer session joined to a cluster's bus, for status and control queries."""
+def _open_retrying(cfg: BusConfig, retry_s: float) -> Any:
+    """Open a session; a client that finds no router retries for ``retry_s`` seconds."""
+    import time
 
-    def __init__(self, spec: ClusterSpec) -> None:
+    deadline = time.monotonic() + retry_s
+    while True:
+        try:
+            return open_session(cfg)
+        except Exception:
+            if cfg.mode != "client" or time.monotonic() >= deadline:
+                raise
+            time.sleep(0.1)
+
+
+class ClusterClient:
+    """A session joined to a cluster's bus, for status and control queries.
+
+    Made from the cluster's spec (a peer meshing with its nodes, through its routers if it
+    has any: what ``hera up`` and tools on the same host use), or with :meth:`connect` from
+    just an endpoint (a client of one node or router: a tool on any host, no run
+    directory needed).
+    """
+
+    def __init__(
+        self,
+        spec: ClusterSpec | None,
+        session: Any = None,
+        cluster: str = "",
+        host: str | None = None,
+        retry_s: float = 0.0,
+    ) -> None:
+        """``host``: the address this tool runs on, to join through that host's routers;
+        ``retry_s``: how long to keep trying when no router answers yet (a launcher that has
+        just started its routers)."""
         self.spec = spec
-        self.keys = Keys(spec.name)
-        endpoints = tuple(spec.endpoint(n.name) for n in spec.nodes)
-        self.session = open_session(
-            BusConfig(listen=(f"tcp/{spec.host}:0",), connect=endpoints, lease_ms=spec.lease_ms)
-        )
+        self.cluster = spec.name if spec is not None else cluster
+        self.keys = Keys(self.cluster)
+        if session is None:
+            from hera.topology import router_endpoints, tool_endpoints
+
+            assert spec is not None
+            if spec.routers:  # a client of the routers (of this host, when it has some)
+                cfg = BusConfig(
+                    listen=(),
+                    connect=router_endpoints(spec, host),
+                    lease_ms=spec.lease_ms,
+                    mode="client",
+                )
+            else:  # a peer of the nodes' full mesh
+                cfg = BusConfig(
+                    listen=(f"tcp/{spec.host}:0",),
+                    connect=tool_endpoints(spec),
+                    lease_ms=spec.lease_ms,
+                )
+            session = _open_retrying(secured(spec, OPERATOR, cfg), retry_s)
+        self.session = session
 
     @classmethod
     def from_run_dir(cls, run_dir: str | Path) -> ClusterClient:
         return cls(load_spec(Path(run_dir) / "cluster.json"))
+
+    @classmethod
+    def connect(
+        cls,
+        endpoints: list[str],
+        cluster: str | None = None,
+        timeout: float = 2.0,
+        credentials: Credentials | None = None,
+    ) -> ClusterClient:
+        """A client session to one of ``endpoints`` (a node or router of the cluster),
+        authenticated with ``credentials`` (the operator's, see
+        :func:`hera.security.credentials.for_operator`); the cluster is found on the bus when
+        ``cluster`` is not given and only one answers. LookupError when nothing answers
+        (wrong credentials included) or several clusters do."""
+        cfg = BusConfig(listen=(), connect=tuple(endpoints), mode="client")
+        if credentials is not None:
+            cfg = credentials.secure(cfg)
+        try:
+            session = open_session(cfg)
+        except Exception as e:
+            raise LookupError(
+                f"cannot join the bus at {', '.join(endpoints)}: nothing listens there, or it "
+                f"refused these credentials ({str(e).split(' at ')[0]})"
+            ) from None
+        try:
+            if cluster is None:
+                found = set()
+                for sample in query_all(session, "hera/*/ctl/*/status", timeout, complete=False):
+                    found.add(str(sample.key_expr).split("/")[1])
+                if not found:
+                    raise LookupError(f"no cluster answers at {', '.join(endpoints)}")
+                if len(found) > 1:
+                    raise LookupError(
+                        f"several clusters answer at {', '.join(endpoints)} "
+                        f"({', '.join(sorted(found))}): pick one with --cluster NAME"
+                    )
+                cluster = found.pop()
+            return cls(None, session, cluster)
+        except BaseException:
+            session.close()
+            raise
+
+    def launchers(self, timeout: float = 1.0) -> dict[str, dict[str, Any]]:
+        """The state of every launcher running processes of the cluster, by launcher id."""
+        out = {}
+        for sample in query_all(
+            self.session, self.keys.launcher("*", "status"), timeout, complete=False
+        ):
+            with contextlib.suppress(ValueError):
+                reply = json.loads(sample.payload.to_bytes())
+                out[str(sample.key_expr).split("/")[-2]] = reply
+        return out
+
+    def launched(self, timeout: float = 1.0) -> dict[str, dict[str, Any]]:
+        """What the launchers say of each node (pid, state, restarts), by node name."""
+        out: dict[str, dict[str, Any]] = {}
+        for state in self.launchers(timeout).values():
+            out.update(state.get("nodes", {}))
+        return out
 
     def query(
         self, node: str, verb: str, request: dict | None = None, timeout: float = 1.0
@@ -102,6 +213,19 @@ class ClusterClient:
             with contextlib.suppress(ValueError):
                 out[str(sample.key_expr).split("/")[-2]] = json.loads(sample.payload.to_bytes())
         return out
+
+    def subscribe(self, selector: str, callback: Callable[[Any], None]) -> Any:
+        """Subscribe to key expression ``selector`` of the cluster's bus (e.g.
+        ``self.keys.data("*", "*")``); ``callback(sample)`` runs on Zenoh's threads. Returns
+        the subscriber (``undeclare()`` it, or close the client)."""
+        return self.session.declare_subscriber(selector, callback)
+
+    def subscribe_alive(self, callback: Callable[[Any], None]) -> Any:
+        """Follow the nodes' liveliness tokens (``alive/**``, with the ones already up):
+        ``callback(sample)`` with a PUT when a node appears, a DELETE when it is gone."""
+        return self.session.liveliness().declare_subscriber(
+            self.keys.alive_all, callback, history=True
+        )
 
     def status(self, timeout: float = 1.0) -> dict[str, dict[str, Any]]:
         """Every reachable node's status, by node name."""

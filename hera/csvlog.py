@@ -3,13 +3,16 @@
 ``<run-dir>/measures/<name>_<node>.csv``: no header, rows ``seq,timestamp_ms,v1,v2,...``
 (timestamp = measurement time, epoch milliseconds). Beside it ``<name>_<node>.columns.json``
 names the columns and their units. Each row is flushed as it is written, so a killed process
-loses at most the row being written.
+loses at most the row being written. At most ``max_open`` files are open at once: the least
+recently written is closed (and opened again, appending, when its source writes again), so
+no number of sources can exhaust the process's file descriptors.
 """
 
 from __future__ import annotations
 
 import json
 import threading
+from collections import OrderedDict
 from pathlib import Path
 from typing import IO
 
@@ -19,13 +22,21 @@ from hera.store import Sample
 class CsvLog:
     """Appends samples to per-(name, node) CSV files under ``<run_dir>/measures``."""
 
-    def __init__(self, run_dir: str | Path, columns: dict[str, tuple[str, ...]] | None = None):
+    def __init__(
+        self,
+        run_dir: str | Path,
+        columns: dict[str, tuple[str, ...]] | None = None,
+        max_open: int = 64,
+    ):
         self.dir = Path(run_dir) / "measures"
         self.dir.mkdir(parents=True, exist_ok=True)
         self._columns = columns or {}
-        self._files: dict[tuple[str, str], IO[str]] = {}
+        self._files: OrderedDict[tuple[str, str], IO[str]] = OrderedDict()
+        self._known: set[tuple[str, str]] = set()
+        self._max_open = max(1, int(max_open))
         self._lock = threading.Lock()
         self.rows = 0
+        self.reopened = 0
 
     def write(self, s: Sample) -> None:
         """Append one row for ``s`` and flush it."""
@@ -33,22 +44,38 @@ class CsvLog:
             f = self._files.get((s.name, s.node))
             if f is None:
                 f = self._open(s)
+            else:
+                self._files.move_to_end((s.name, s.node))
             f.write(f"{s.seq},{round(s.t * 1000.0, 3)!r},{','.join(map(repr, s.values))}\n")
             f.flush()
             self.rows += 1
 
+    @property
+    def open_files(self) -> int:
+        """How many files are open now (at most ``max_open``)."""
+        with self._lock:
+            return len(self._files)
+
     def _open(self, s: Sample) -> IO[str]:
+        source = (s.name, s.node)
         stem = f"{s.name}_{s.node}"
-        cols = self._columns.get(s.name) or tuple(f"v{i + 1}" for i in range(len(s.values)))
-        sidecar = {
-            "name": s.name,
-            "node": s.node,
-            "columns": ["seq", "timestamp [ms since epoch]", *cols],
-            "format": "no header; seq,timestamp_ms,v1,v2,... (original Hera CSV layout)",
-        }
-        (self.dir / f"{stem}.columns.json").write_text(json.dumps(sidecar, indent=1))
+        while len(self._files) >= self._max_open:
+            _, oldest = self._files.popitem(last=False)
+            oldest.close()
+        if source in self._known:
+            self.reopened += 1
+        else:
+            cols = self._columns.get(s.name) or tuple(f"v{i + 1}" for i in range(len(s.values)))
+            sidecar = {
+                "name": s.name,
+                "node": s.node,
+                "columns": ["seq", "timestamp [ms since epoch]", *cols],
+                "format": "no header; seq,timestamp_ms,v1,v2,... (original Hera CSV layout)",
+            }
+            (self.dir / f"{stem}.columns.json").write_text(json.dumps(sidecar, indent=1))
+            self._known.add(source)
         f = open(self.dir / f"{stem}.csv", "a", buffering=1)  # noqa: SIM115 - kept open
-        self._files[(s.name, s.node)] = f
+        self._files[source] = f
         return f
 
     def close(self) -> None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -65,16 +66,22 @@ def load_outputs(run_dir: str | Path, spec: ClusterSpec | None = None) -> list[S
 
 
 def evaluate(
-    run_dir: str | Path, options: EvalOptions | None = None, index: AppIndex | None = None
+    run_dir: str | Path,
+    options: EvalOptions | None = None,
+    index: AppIndex | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> list[Scored]:
     """Every model output of the run, scored by its application, in the applications'
-    order (a ladder's rungs in order)."""
+    order (a ladder's rungs in order); ``progress(done, total)`` after each output."""
     options = options or EvalOptions()
     spec = run_spec(run_dir)
     index = index or AppIndex()
     truths: dict[str, Any] = {}
     out = []
-    for s in load_outputs(run_dir, spec):
+    outputs = load_outputs(run_dir, spec)
+    for i, s in enumerate(outputs):
+        if progress is not None:
+            progress(i, len(outputs))
         app = index.app_of(s.measure)
         scores: dict[str, float | None] = {}
         if app is not None:
@@ -82,6 +89,8 @@ def evaluate(
                 truths[app.name] = app.truth(spec.world)
             scores = dict(app.score(s, truths[app.name], options))
         out.append(Scored(s, app, index.label(s.name, s.measure), scores))
+    if progress is not None:
+        progress(len(outputs), len(outputs))
     out.sort(key=lambda r: (*index.rank(r.series.measure), r.series.name, r.series.node))
     return out
 

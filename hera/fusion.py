@@ -16,6 +16,13 @@ A :class:`FusionMeasure` runs a model inside a node, in one of two modes (arg ``
   released in measurement-time order, so a sample that arrives late (a sonar stamps the
   start of its 49 ms ping) is still fused at its own time: live and ``hera replay`` fuse
   the same sequence. The estimate keeps its true time; it is only published later.
+
+Each source's samples are fused at most once (a sample with a seq not above the last fused
+one of its (name, node) is skipped). After a hot reload (:mod:`hera.reload`) the new fusion
+measure takes over the old one's model state and the samples it held
+(:meth:`FusionMeasure.code_change`): a model with its own ``code_change(old_version,
+old_model)`` converts the old model's state itself; otherwise, when the model class keeps
+its name, the old model's attributes are carried over as they are.
 """
 
 from __future__ import annotations
@@ -42,7 +49,9 @@ if TYPE_CHECKING:  # pragma: no cover
 class FusionModel(Protocol):
     """What a fusion model gives. Optionally, ``counters() -> {name: int}``: its diagnostic
     counters (samples rejected, late, ...), shown in ``hera status`` and written by
-    ``hera replay``."""
+    ``hera replay``; and ``outputs() -> [(t, values), ...]``: a model that makes several
+    rows at a time (a map in tiles) hands every row made since the last call there instead
+    of through :meth:`estimate`; a fusion measure publishes them in order, one per step."""
 
     inputs: tuple[str, ...]
     columns: tuple[str, ...]
@@ -59,6 +68,26 @@ def model_counters(model: Any) -> dict[str, int]:
     """The model's diagnostic counters (its ``counters()``), or none."""
     counters = getattr(model, "counters", None)
     return dict(counters()) if callable(counters) else {}
+
+
+def model_outputs(model: Any) -> list[tuple[float, list[float]]] | None:
+    """The rows the model made since the last call (its ``outputs()``), or None when it
+    has no ``outputs`` (its :meth:`~FusionModel.estimate` is its output)."""
+    drain = getattr(model, "outputs", None)
+    return list(drain()) if callable(drain) else None
+
+
+def adopt_model(new: Any, old: Any) -> bool:
+    """Give model ``new`` (new code) the state of model ``old`` (see the module docstring);
+    return whether any state was carried over."""
+    hook = getattr(new, "code_change", None)
+    if callable(hook):
+        hook(getattr(type(old), "version", ""), old)
+        return True
+    if type(new).__qualname__ == type(old).__qualname__:
+        vars(new).update(vars(old))
+        return True
+    return False
 
 
 def model_settings(model_class: type) -> tuple[str, ...] | None:
@@ -176,6 +205,12 @@ class FusionMeasure(Measure):
         return problems
 
     @classmethod
+    def reads(cls, args: Mapping[str, Any]) -> tuple[str, ...] | None:
+        """The model's inputs (its settings may change them, e.g. a ladder's rung)."""
+        model = dict(args.get("model") or {})
+        return tuple(cls.make_model(model).inputs)
+
+    @classmethod
     def make_model(cls, settings: Mapping[str, Any], where: str = "model") -> Any:
         """A model with these settings (and the fixed ones); ValueError naming the setting
         that is unknown or refused by the model."""
@@ -200,6 +235,8 @@ class FusionMeasure(Measure):
         self._inbox = None
         self._cursor = None
         self._first_t: float | None = None
+        self._outbox: deque[tuple[float, list[float]]] = deque()
+        self._fused: dict[tuple[str, str], int] = {}
         if self.mode == "arrival":
             self._inbox = Inbox(ctx.store, self.model.inputs, args["backlog"])
         else:
@@ -230,14 +267,45 @@ class FusionMeasure(Measure):
             samples = time_order(self._cursor.new(max_age=self.max_age))
         changed = False
         for s in samples:
+            if s.seq <= self._fused.get((s.name, s.node), 0):
+                continue  # already fused (a sample handed over by a hot reload)
+            self._fused[(s.name, s.node)] = s.seq
             if self.model.process(s):
                 changed = True
                 if self._first_t is None:
                     self._first_t = s.t
                     self._record_start(s.t)
         self._report(len(samples))
+        rows = model_outputs(self.model)
+        if rows is not None:
+            self._outbox.extend(rows)
+            if not self._outbox:
+                return None
+            t, values = self._outbox.popleft()
+            return Reading(values, t)
         est = self.model.estimate() if changed else None
         return None if est is None else Reading(est[1], est[0])
+
+    def code_change(self, old_version: str, state: Mapping[str, Any]) -> None:
+        """Take over the replaced fusion measure's model state, the samples it held or had
+        not drained yet and what it had fused (see the module docstring)."""
+        old_model = state.get("model")
+        if old_model is not None and not adopt_model(self.model, old_model):
+            self.ctx.log.warning(
+                "the new model %s cannot take over the state of %s: it starts afresh",
+                type(self.model).__qualname__,
+                type(old_model).__qualname__,
+            )
+        self._first_t = state.get("_first_t", self._first_t)
+        self._fused = {**state.get("_fused", {}), **self._fused}
+        pending = [entry[-1] for entry in state.get("_held", ())]
+        old_inbox = state.get("_inbox")
+        if old_inbox is not None:
+            pending += old_inbox.drain()
+        if self._inbox is not None:
+            for s in pending:
+                heapq.heappush(self._held, (s.t, s.name, s.node, s.seq, s))
+                self._newest = max(self._newest, s.t)
 
     def _record_start(self, t: float) -> None:
         """Write the first fused sample's time to ``<run>/measures/<name>_<node>.start.json``

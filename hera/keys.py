@@ -8,6 +8,7 @@ share a network (ARCHITECTURE.md, part 1):
 - ``hera/<cluster>/args/<key>``: the replicated arguments store;
 - ``hera/<cluster>/seq/<name>/<node>``: queryable answering the latest seq a node has seen;
 - ``hera/<cluster>/ctl/<node>/<verb>``: the control plane;
+- ``hera/<cluster>/launcher/<id>/<verb>``: the launchers running the cluster's processes;
 - ``hera/<cluster>/sync/<group>/...``: the synchronisation service;
 - ``hera/<cluster>/sim/...``: the simulated physical world.
 """
@@ -17,19 +18,26 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
+MAX_CHUNK = 64
+"""Longest name (a key chunk) accepted anywhere: in a spec and from the bus."""
 _CHUNK = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
 
 def check_chunk(value: str, what: str) -> str:
     """Return ``value`` if it is a valid single key chunk, else raise ValueError naming ``what``.
 
-    A chunk is one non-empty path element of letters, digits, ``_``, ``.`` or ``-``: no
-    ``/``, no Zenoh wildcards (``*``, ``$``), no ``?`` or ``#``.
+    A chunk is one non-empty path element of at most :data:`MAX_CHUNK` ASCII letters,
+    digits, ``_``, ``.`` or ``-``: no ``/``, no Zenoh wildcards (``*``, ``$``), no ``?``,
+    ``#``, space or other character a file name could not carry. The same rule holds for
+    the names of a spec and for every name taken from the bus.
     """
     if not isinstance(value, str) or not _CHUNK.match(value):
+        shown = value if not isinstance(value, str) or len(value) <= 80 else value[:80] + "..."
         raise ValueError(
-            f"invalid {what} {value!r}: use letters, digits, '_', '.', '-' (no '/', '*', '$')"
+            f"invalid {what} {shown!r}: use letters, digits, '_', '.', '-' (no '/', '*', '$')"
         )
+    if len(value) > MAX_CHUNK:
+        raise ValueError(f"invalid {what} {value[:80]!r}...: longer than {MAX_CHUNK} characters")
     return value
 
 
@@ -56,8 +64,8 @@ class Keys:
             raise ValueError(f"not a data key of cluster {self.cluster!r}: {key!r}")
         parts = key[len(head) :].split("/")
         if len(parts) != 2 or not all(parts):
-            raise ValueError(f"data key must be {head}<name>/<node>, got {key!r}")
-        return parts[0], parts[1]
+            raise ValueError(f"data key must be {head}<name>/<node>, got {key[:200]!r}")
+        return check_chunk(parts[0], "name"), check_chunk(parts[1], "node")
 
     def alive(self, node: str = "*", worker: str | None = None) -> str:
         base = f"{self.prefix}/alive/{node}"
@@ -83,6 +91,10 @@ class Keys:
 
     def ctl(self, node: str = "*", verb: str = "*") -> str:
         return f"{self.prefix}/ctl/{node}/{verb}"
+
+    def launcher(self, launcher: str = "*", verb: str = "*") -> str:
+        """``launcher/<id>/<verb>``: a launcher's queryable (``status``, ``down``)."""
+        return f"{self.prefix}/launcher/{launcher}/{verb}"
 
     def sync(self, group: str, rest: str = "**") -> str:
         return f"{self.prefix}/sync/{group}/{rest}"

@@ -1,14 +1,23 @@
 """``hera up``: run every node of a spec as its own OS process, and keep them running.
 
-- Free loopback ports are picked when the spec says ``base_port = 0``; the resolved spec
-  (ports, world epoch) is written to ``<run-dir>/cluster.json`` and handed to the nodes.
+- The spec is checked whole before anything starts (:mod:`hera.preflight`), fixed ports
+  included: every problem is reported at once.
+- Every run gets its own run directory (:mod:`hera.rundirs`); one given by hand that holds a
+  previous run is refused unless asked to overwrite it. Free loopback ports are picked when
+  the spec says ``base_port = 0``; the resolved spec (ports, world epoch) is written to
+  ``<run-dir>/cluster.json`` and handed to the nodes.
 - A node that exits is started again after ``RESTART_DELAY``, with a start limit like
   systemd's (at most ``START_BURST`` starts within ``START_INTERVAL`` s, then it stays
-  failed). Each node's output goes to ``<run-dir>/logs/<node>.log``.
+  failed). A node that cannot start for a cause that will not go away (a busy port: it exits
+  with :data:`hera.node.EXIT_CONFIG` after logging the cause) is not restarted: the
+  launcher prints the cause, stops the cluster and exits 1. Each node's output goes to
+  ``<run-dir>/logs/<node>.log``.
 - Nodes run in their own sessions (Ctrl-C reaches only the launcher) and watch the
   launcher's pid, so they stop even if the launcher is SIGKILLed.
 - SIGINT, SIGTERM, ``hera down`` or the end of ``--duration`` stop everything: SIGTERM to
   each node, SIGKILL after the shutdown timeout, exit 0, nothing left behind.
+- ``web``: serve the live web view (:mod:`hera.console`) on that loopback port while the
+  cluster runs; ``mcap``: record every sample to that MCAP file (:mod:`hera.export.mcap`).
 """
 
 from __future__ import annotations
@@ -16,6 +25,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -23,21 +33,93 @@ import sys
 import threading
 import time
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+from hera.application import Panel
 from hera.client import ClusterClient, registry_dir
 from hera.fusion import spec_models
-from hera.panel import estimates_panels, render_panel
+from hera.keys import Keys
+from hera.node import EXIT_CONFIG, FATAL
+from hera.panel import estimates_panels
 from hera.plugins import AppIndex
 from hera.preflight import check_spec
-from hera.spec import ClusterSpec, load_spec
-from hera.statusview import render_status
+from hera.rundirs import new_run_dir, prepare_run_dir, state_dir
+from hera.security.access import OPERATOR
+from hera.security.credentials import for_spec
+from hera.security.secret import SECRET_FILE, make_secret
+from hera.spec import ClusterSpec, SpecError, load_spec
+from hera.statusview import render_view
 
 START_BURST = 5
 START_INTERVAL = 10.0
 RESTART_DELAY = 0.05
+
+
+def busy_ports(spec: ClusterSpec, local: set[str] | None = None) -> list[str]:
+    """One problem per fixed port of the spec's nodes and routers run here (``local``,
+    default all) that is already in use on its host."""
+    out = []
+    for part in (*spec.nodes, *spec.routers):
+        if not part.port or (local is not None and part.name not in local):
+            continue
+        host = part.host or spec.host
+        what = "router" if part in spec.routers else "node"
+        with socket.socket() as s:
+            try:
+                s.bind((host, part.port))
+            except OSError as e:
+                out.append(
+                    f"{spec.source}: {what} {part.name!r}: port {part.port} on {host} is not "
+                    f"free ({e.strerror}): change [cluster] base_port or its port"
+                )
+    return out
+
+
+def web_port_problems(port: int, host: str = "127.0.0.1") -> list[str]:
+    """The problem with serving the web view on ``host:port``, if any."""
+    with socket.socket() as s:
+        try:
+            s.bind((host, port))
+        except OSError as e:
+            return [f"--web: port {port} on {host} is not free ({e.strerror}): pick another"]
+    return []
+
+
+def console_dependencies(web: bool, mcap: bool) -> None:
+    """ImportError naming the extra to install when the web view or MCAP recording is asked
+    for without its packages (checked before any node starts)."""
+    import importlib.util
+
+    missing = [m for m, wanted in (("aiohttp", web), ("mcap", mcap)) if wanted]
+    missing = [m for m in missing if importlib.util.find_spec(m) is None]
+    if missing:
+        raise ImportError(
+            f"{' and '.join(missing)} not installed: pip install 'hera-fusion[console]'"
+        )
+
+
+def shown_measures(spec: ClusterSpec, index: AppIndex) -> dict[str, type]:
+    """The measures whose latest values the live view shows: every measure of an
+    application (its panel decides what to show) and every fusion model."""
+    from hera.plugins import find_measure
+
+    out = dict(spec_models(spec))
+    for _, m in spec.measures():
+        cls = find_measure(m.use)
+        if index.app_of(cls) is not None:
+            out.setdefault(str(m.name), cls)
+    return out
+
+
+def prefer_node(samples: list[dict], node: str) -> list[dict]:
+    """One sample per name: ``node``'s own if it has one, else the first node's."""
+    best: dict[str, dict] = {}
+    for s in sorted(samples, key=lambda s: (s["node"] != node, s["node"])):
+        best.setdefault(s["name"], s)
+    return list(best.values())
 
 
 def free_ports(host: str, n: int) -> list[int]:
@@ -77,6 +159,7 @@ class NodeProc:
     state: str = "starting"  # up | restarting | failed | stopped
     last_exit: int | None = None
     restart_at: float | None = None
+    started_at: float = 0.0
 
     def info(self) -> dict[str, Any]:
         return {
@@ -84,6 +167,7 @@ class NodeProc:
             "state": self.state,
             "restarts": self.restarts,
             "last_exit": self.last_exit,
+            "age_s": round(time.monotonic() - self.started_at, 3),
         }
 
 
@@ -97,40 +181,104 @@ class Launcher:
         duration: float | None = None,
         out: IO[str] | None = None,
         interval: float = 1.0,
+        overwrite: bool = False,
+        only: Sequence[str] | None = None,
+        cert: str | Path | None = None,
+        web: int | None = None,
+        mcap: str | Path | None = None,
     ) -> None:
         spec = check_spec(load_spec(spec_path))
-        if spec.base_port == 0 and not all(n.port for n in spec.nodes):
-            spec = spec.with_ports(free_ports(spec.host, len(spec.nodes)))
+        if cert is not None:
+            spec = spec.with_security(certs=str(Path(cert).resolve()))
+        if spec.spans_hosts() and (spec.auth or spec.tls) and not spec.certs:
+            raise SpecError(
+                f"{spec.source}: [security]: the spec spans several hosts, which must share "
+                "their credentials: make them with 'hera certs SPEC --out DIR', copy DIR to "
+                "every host and give --cert DIR (or [security] certs = DIR)"
+            )
+        names = [n.name for n in spec.nodes] + [r.name for r in spec.routers]
+        if only is not None:
+            unknown = [x for x in only if x not in names]
+            if unknown:
+                raise SpecError(
+                    f"{spec.source}: --only names {unknown}, which are not nodes or routers of "
+                    f"the spec ({', '.join(names)})"
+                )
+        self.local = set(names if only is None else only)
+        busy = busy_ports(spec, self.local)
+        if web:
+            busy += web_port_problems(web)
+        if web is not None or mcap is not None:
+            console_dependencies(web is not None, mcap is not None)
+        if busy:
+            raise SpecError(busy)
+        unset = [p for p in (*spec.nodes, *spec.routers) if not (p.port or p.listen)]
+        if spec.base_port == 0 and unset:
+            spec = spec.with_ports(free_ports(spec.host, len(unset)))
         if "epoch" not in spec.world:
             spec = spec.with_world(epoch=time.time())
         self.spec: ClusterSpec = spec
-        self.run_dir = Path(run_dir or Path("hera-run") / spec.name).resolve()
+        self.link: Path | None = None
+        if run_dir is None:
+            self.run_dir = new_run_dir(spec.name)
+            link = self.run_dir.parent / spec.name
+            self.link = link if link.is_symlink() else None
+        else:
+            self.run_dir = prepare_run_dir(Path(run_dir), overwrite)
+        self.state_dir = state_dir(spec.name, self.run_dir, run_dir is not None)
+        if spec.auth and not spec.tls and not spec.certs:
+            spec = spec.with_security(secret=str(make_secret(self.run_dir / SECRET_FILE)))
+        self.spec = spec
+        for name in self.local | {OPERATOR}:
+            for_spec(spec, name)  # CredentialsError now rather than in every node
         self.duration = duration
         self.out = out or sys.stdout
         self.interval = interval
-        self.nodes = {n.name: NodeProc(n.name) for n in spec.nodes}
-        self.models = spec_models(spec)
+        self.routers = {r.name: NodeProc(r.name) for r in spec.routers if r.name in self.local}
+        self.nodes = {n.name: NodeProc(n.name) for n in spec.nodes if n.name in self.local}
+        self.id = f"{socket.gethostname()}-{os.getpid()}".replace("/", "_")
+        self.shown = shown_measures(spec, AppIndex())
         self.index = AppIndex()
         self.stopping = threading.Event()
+        self.failed: str | None = None
+        self._written: tuple[list, float] = ([], 0.0)
         self._logs: dict[str, IO[bytes]] = {}
-        self.registry_file = registry_dir() / f"{spec.name}.json"
+        self.web, self.mcap = web, mcap
+        self.registry_file = registry_dir() / f"{spec.name}-{os.getpid()}.json"
 
     # -- process management -------------------------------------------------------------
+    def host(self) -> str | None:
+        """The address of the host this launcher runs on (that of its nodes and routers)."""
+        for part in (*self.spec.routers, *self.spec.nodes):
+            if part.name in self.local:
+                return part.host or self.spec.host
+        return None
+
+    def _procs(self) -> list[NodeProc]:
+        """Every process this launcher runs: the routers first, then the nodes."""
+        return [*self.routers.values(), *self.nodes.values()]
+
     def _spawn(self, np: NodeProc) -> None:
         log = self._logs.get(np.name)
         if log is None:
             log = open(self.run_dir / "logs" / f"{np.name}.log", "ab")  # noqa: SIM115
             self._logs[np.name] = log
-        cmd = node_command(
-            "node",
-            str(self.run_dir / "cluster.json"),
-            "--node",
-            np.name,
-            "--run-dir",
-            str(self.run_dir),
-            "--parent-pid",
-            str(os.getpid()),
-        )
+        spec_file = str(self.run_dir / "cluster.json")
+        parent = ("--parent-pid", str(os.getpid()))
+        if np.name in self.routers:
+            cmd = node_command("router", spec_file, "--name", np.name, *parent)
+        else:
+            cmd = node_command(
+                "node",
+                spec_file,
+                "--node",
+                np.name,
+                "--run-dir",
+                str(self.run_dir),
+                "--state-dir",
+                str(self.state_dir),
+                *parent,
+            )
         np.proc = subprocess.Popen(
             cmd,
             stdout=log,
@@ -139,6 +287,7 @@ class Launcher:
             start_new_session=True,
         )
         np.starts.append(time.monotonic())
+        np.started_at = time.monotonic()
         np.state = "up"
         np.restart_at = None
 
@@ -163,25 +312,69 @@ class Launcher:
         if code is None:
             return
         np.last_exit = code
+        if code == EXIT_CONFIG:
+            np.state = "failed"
+            cause = self._fatal_cause(np.name) or "see its log"
+            self._say(f"node {np.name} cannot start: {cause}; stopping the cluster")
+            self.failed = f"node {np.name} cannot start: {cause}"
+            self.stopping.set()
+            return
         np.state = "restarting"
         np.restart_at = now + RESTART_DELAY
         self._say(f"node {np.name} exited with code {code}; restarting it")
 
+    def _fatal_cause(self, node: str) -> str | None:
+        """The cause a node logged before it exited EXIT_CONFIG (its last FATAL line)."""
+        try:
+            lines = (self.run_dir / "logs" / f"{node}.log").read_text(errors="replace")
+        except OSError:
+            return None
+        found = [ln.split(FATAL, 1)[1].strip() for ln in lines.splitlines() if FATAL in ln]
+        return found[-1] if found else None
+
     def _say(self, text: str) -> None:
         print(f"[hera up {time.strftime('%H:%M:%S')}] {text}", file=self.out, flush=True)
 
-    def _write_launcher_state(self) -> None:
-        state = {
+    def state(self) -> dict[str, Any]:
+        """This launcher's state: its id, host, pid, run dir, nodes and routers."""
+        return {
+            "launcher": self.id,
+            "host": socket.gethostname(),
             "launcher_pid": os.getpid(),
+            "run_dir": str(self.run_dir),
             "nodes": {n: p.info() for n, p in self.nodes.items()},
+            "routers": {n: p.info() for n, p in self.routers.items()},
         }
+
+    def _on_query(self, query: Any) -> None:
+        """``hera/<cluster>/launcher/<id>/<verb>``: ``status`` (its state) or ``down`` (stop
+        the processes it runs), so tools reach launchers over the bus from any host."""
+        with query:
+            verb = str(query.key_expr).rsplit("/", 1)[-1]
+            if verb == "down":
+                self.stopping.set()
+                reply = {"ok": True, "stopping": sorted(self.nodes) + sorted(self.routers)}
+            elif verb == "status":
+                reply = {"ok": True, **self.state()}
+            else:
+                reply = {"ok": False, "error": f"unknown launcher verb {verb!r}: status, down"}
+            query.reply(Keys(self.spec.name).launcher(self.id, verb), json.dumps(reply))
+
+    def _write_launcher_state(self, force: bool = False) -> None:
+        """Write ``launcher.json`` when a process changed (pid, state, restarts) or once a
+        second, not at every turn of the loop."""
+        key = [(p.proc.pid if p.proc else None, p.state, p.restarts) for p in self._procs()]
+        now = time.monotonic()
+        if not force and key == self._written[0] and now - self._written[1] < 1.0:
+            return
+        self._written = (key, now)
         tmp = self.run_dir / "launcher.json.tmp"
-        tmp.write_text(json.dumps(state))
+        tmp.write_text(json.dumps(self.state()))
         os.replace(tmp, self.run_dir / "launcher.json")
 
     # -- main loop ----------------------------------------------------------------------
     def run(self) -> int:
-        """Run until stopped; return 0 after a clean stop."""
+        """Run until stopped; return 0 after a clean stop, 1 when a node could not start."""
         (self.run_dir / "logs").mkdir(parents=True, exist_ok=True)
         (self.run_dir / "cluster.json").write_text(self.spec.to_json())
         self.registry_file.parent.mkdir(parents=True, exist_ok=True)
@@ -198,17 +391,24 @@ class Launcher:
         for sig in (signal.SIGINT, signal.SIGTERM):
             handlers[sig] = signal.signal(sig, lambda *_: self.stopping.set())
         client = None
+        extras: list[Any] = []
         try:
-            for np in self.nodes.values():
+            for np in self._procs():
                 self._spawn(np)
+            routers = f" and {len(self.routers)} routers" if self.routers else ""
             self._say(
-                f"cluster {self.spec.name!r}: {len(self.nodes)} nodes, run dir {self.run_dir}"
+                f"cluster {self.spec.name!r}: {len(self.nodes)} nodes{routers}, run dir "
+                f"{self.run_dir}"
             )
-            client = ClusterClient(self.spec)
+            client = ClusterClient(self.spec, host=self.host(), retry_s=15.0)
+            client.session.declare_queryable(
+                Keys(self.spec.name).launcher(self.id, "*"), self._on_query, complete=True
+            )
+            extras = self._start_extras()
             started = time.monotonic()
             next_view = started + self.interval
             while not self.stopping.is_set():
-                for np in self.nodes.values():
+                for np in self._procs():
                     self._check(np)
                 self._write_launcher_state()
                 now = time.monotonic()
@@ -219,8 +419,13 @@ class Launcher:
                     self._show(client, now - started)
                 self.stopping.wait(0.05)
             self._say("stopping")
-            return 0
+            return 1 if self.failed else 0
         finally:
+            for extra in reversed(extras):
+                try:
+                    extra.close()
+                except Exception as e:  # closing the view or the recorder must not stop the stop
+                    self._say(f"closing {type(extra).__name__} failed: {e}")
             if client is not None:
                 with contextlib.suppress(Exception):
                     client.close()
@@ -231,6 +436,47 @@ class Launcher:
                 self.registry_file.unlink()
             for f in self._logs.values():
                 f.close()
+            self._say(self._next_steps())
+
+    def _start_extras(self) -> list[Any]:
+        """The web view and the live MCAP recorder, when asked for (closed at the end)."""
+        extras: list[Any] = []
+        if self.mcap is not None:
+            from hera.export.mcap import LiveRecorder
+
+            extras.append(LiveRecorder(self.spec, self.mcap))
+            self._say(f"recording every sample to {self.mcap}")
+        if self.web is not None:
+            from hera.console.server import ConsoleServer
+            from hera.console.state import Console
+
+            console = Console(
+                self.spec,
+                self.run_dir,
+                launcher_state=lambda: {n: p.info() for n, p in self.nodes.items()},
+            )
+            extras.append(console)
+            server = ConsoleServer(console, "127.0.0.1", self.web)
+            url = server.start()
+            extras.append(server)
+            self._say(f"web view on {url}")
+        return extras
+
+    def _next_steps(self) -> str:
+        """Where the run is and what to run next (printed when the cluster has stopped)."""
+
+        def short(path: Path) -> str:
+            rel = os.path.relpath(path)
+            return str(path) if rel.startswith("..") else rel
+
+        run = short(self.run_dir)
+        if self.failed:
+            return f"stopped: {self.failed}; logs in {run}/logs"
+        text = f"stopped; the run is in {run}"
+        if spec_models(self.spec):
+            name = short(self.link) if self.link is not None else run
+            text += f"; next: hera eval {name}"
+        return text
 
     def _show(self, client: ClusterClient, uptime: float) -> None:
         try:
@@ -239,42 +485,56 @@ class Launcher:
             status = {}
             self._say(f"status query failed: {e}")
         launcher = {n: p.info() for n, p in self.nodes.items()}
-        text = render_status(self.spec.name, status, launcher, uptime, str(self.run_dir))
-        if self.models and status:
-            text += "\n\n" + self._estimates(client, status)
-        if self.out.isatty():
-            self.out.write("\x1b[H\x1b[2J" + text + "\n")
-        else:
-            self.out.write(text + "\n")
+        panels = self._panels(client, status)
+        tty = self.out.isatty()
+        width, height = shutil.get_terminal_size((120, 40)) if tty else (120, 10_000)
+        text = render_view(
+            self.spec.name,
+            status,
+            launcher,
+            uptime=uptime,
+            run_dir=os.path.relpath(self.run_dir),
+            panels=panels,
+            width=width,
+            height=height - 1,
+            routers={n: p.info() for n, p in self.routers.items()},
+        )
+        self.out.write(("\x1b[H\x1b[2J" if tty else "") + text + "\n")
         self.out.flush()
 
-    def _estimates(self, client: ClusterClient, status: dict) -> str:
+    def _panels(self, client: ClusterClient, status: dict) -> list[Panel]:
+        """The applications' panels, from what the nodes' stores hold of the measures shown
+        (the logging node's samples first)."""
+        if not self.shown or not status:
+            return []
         node = self.spec.log_node if self.spec.log_node in status else sorted(status)[0]
         try:
-            reply = client.query(node, "store", {}, timeout=0.5).get(node, {})
-            samples = reply.get("samples", [])
-            panels = estimates_panels(self.models, samples, self.spec.world, self.index)
+            request = {"names": sorted(self.shown)}
+            replies = client.query("*", "store", request, timeout=0.5)
+            held = [s for r in replies.values() for s in r.get("samples", [])]
+            samples = prefer_node(held, node)
+            return estimates_panels(self.shown, samples, self.spec.world, self.index)
         except Exception as e:  # the view must never take the launcher down
-            return f"estimates: query failed ({e})"
-        if not panels:
-            return "estimates: none yet (models start when their inputs arrive)"
-        return "\n\n".join(render_panel(p) for p in panels)
+            return [Panel(f"estimates: query failed ({e})", ("",))]
 
     def _stop_all(self) -> None:
-        procs = [p.proc for p in self.nodes.values() if p.proc is not None]
-        for p in procs:
-            if p.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    p.send_signal(signal.SIGCONT)
-                    p.terminate()
-        deadline = time.monotonic() + self.spec.shutdown_timeout + 3.0
-        for p in procs:
-            try:
-                p.wait(max(0.05, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
-        for np in self.nodes.values():
+        """Stop the nodes (SIGTERM, SIGKILL after the shutdown timeout), then the routers,
+        which carry the others' traffic until then."""
+        for group in (self.nodes.values(), self.routers.values()):
+            procs = [p.proc for p in group if p.proc is not None]
+            for p in procs:
+                if p.poll() is None:
+                    with contextlib.suppress(ProcessLookupError):
+                        p.send_signal(signal.SIGCONT)
+                        p.terminate()
+            deadline = time.monotonic() + self.spec.shutdown_timeout + 3.0
+            for p in procs:
+                try:
+                    p.wait(max(0.05, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()
+        for np in self._procs():
             np.state = "stopped"
         with contextlib.suppress(OSError):
-            self._write_launcher_state()
+            self._write_launcher_state(force=True)

@@ -10,6 +10,18 @@ If a measure raises, it is restarted by its supervisor: a **new** instance gets 
 same arguments it was first created with. A calibration computed during ``init`` should be
 stored in the replicated args store (``ctx.args``) and looked up there first, so it is not
 redone while the system runs.
+
+Changes at run time (``hera args``, ``hera reload``):
+
+- a measure's own replicated keys are ``calib/<node>/<measure>`` (its calibration) and
+  ``measure/<node>/<measure>/<arg>`` (run-time values of its arguments, see
+  :func:`own_keys`). When one of them changes, the worker calls
+  :meth:`Measure.args_changed` before the measure's next step; by default the measure is
+  re-created in place (``close``, a new instance, ``init`` with the spec's arguments and
+  the run-time ones), so deleting ``calib/<node>/<measure>`` re-runs a calibration that
+  ``init`` does when none is stored, and a changed argument takes effect at once;
+- a hot reload (:mod:`hera.reload`) replaces a running measure by one of the new code and
+  hands it the old one's attributes through :meth:`Measure.code_change`.
 """
 
 from __future__ import annotations
@@ -42,6 +54,22 @@ if TYPE_CHECKING:  # pragma: no cover - imports for type checkers only
 from hera.resources import Resources
 
 RESTART_TYPES = ("permanent", "transient", "temporary")
+CALIB_PREFIX = "calib"
+"""``calib/<node>/<measure>``: where a measure keeps its calibration in the args store."""
+ARGS_PREFIX = "measure"
+"""``measure/<node>/<measure>/<arg>``: run-time values of a measure's arguments."""
+
+
+def own_keys(node: str, measure: str) -> tuple[str, str]:
+    """The args-store keys a measure follows: its calibration key and the prefix of its
+    run-time arguments (``calib/<node>/<measure>``, ``measure/<node>/<measure>/``)."""
+    return f"{CALIB_PREFIX}/{node}/{measure}", f"{ARGS_PREFIX}/{node}/{measure}/"
+
+
+def runtime_args(items: Mapping[str, Any], node: str, measure: str) -> dict[str, Any]:
+    """The run-time arguments of ``measure`` on ``node`` among args-store ``items``."""
+    prefix = own_keys(node, measure)[1]
+    return {k[len(prefix) :]: v for k, v in items.items() if k.startswith(prefix)}
 
 
 def _measure_ref(use: str) -> None:
@@ -244,12 +272,27 @@ class Measure:
     sync: ClassVar[bool] = False
     slot: ClassVar[float] = 0.05
     columns: ClassVar[tuple[str, ...]] = ()
+    inputs: ClassVar[tuple[str, ...] | None] = None
+    """The publication names this measure reads from the store (``"prefix*"``: every name
+    starting with prefix; ``"name/node"``: one sender's only); ``()`` for none. None (the
+    default): it may read anything, and its node takes every sample of the cluster. See
+    :meth:`reads`."""
+    version: ClassVar[str] = ""
+    """The version of this measure's code, handed to :meth:`code_change` of its successor
+    after a hot reload."""
     arguments: ClassVar[Table | None] = None
     """The ``args`` this measure takes (a :class:`hera.schema.Table`). When declared, a spec
     giving an unknown or ill-typed argument is refused before any node starts, and
     :meth:`init` receives the arguments converted, with the defaults filled in."""
 
     ctx: MeasureContext
+
+    @classmethod
+    def reads(cls, args: Mapping[str, Any]) -> tuple[str, ...] | None:
+        """The names this measure, with these ``args``, reads from the store (see
+        :attr:`inputs`, which it returns unless overridden): its node subscribes to those
+        only, so a store holds what its measures need and no more."""
+        return cls.inputs
 
     @classmethod
     def check_args(cls, args: Mapping[str, Any], where: str) -> list[str]:
@@ -279,3 +322,17 @@ class Measure:
 
     def close(self) -> None:
         """Release what ``init`` acquired; called when the worker ends or is replaced."""
+
+    def args_changed(self, changes: Mapping[str, Any]) -> bool:
+        """Some of this measure's own args-store keys changed (see the module docstring):
+        ``changes`` maps each key to its new value (None when deleted). Called by the
+        worker before the next step, on the worker's thread. Return True when the measure
+        has applied the change itself; the default returns False and the worker re-creates
+        the measure in place from its spec arguments merged with the run-time ones."""
+        return False
+
+    def code_change(self, old_version: str, state: Mapping[str, Any]) -> None:
+        """After a hot reload, on the new code's instance (``init`` done, before its first
+        step): ``state`` is the replaced instance's attributes (its ``vars()``),
+        ``old_version`` its class's :attr:`version`. Adopt what applies; raising rolls the
+        reload back. The default keeps the fresh state, as after a restart."""

@@ -15,7 +15,9 @@ guarantees of ARCHITECTURE.md:
    answer the control plane (a node that answers status has all its measures registered).
 
 Exit codes: 0 after a requested stop, 3 when the supervisor's restart intensity is exceeded
-(escalation), 70 when a crash is injected. The launcher restarts a node that exits non-zero.
+(escalation), 70 when a crash is injected, 78 when it cannot start for a cause a restart
+will not cure (its port is taken): it logs ``FATAL: <cause>`` first. The launcher restarts a
+node that exits non-zero, but 78.
 """
 
 from __future__ import annotations
@@ -26,34 +28,54 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 import zenoh
 
 from hera.args import ArgsStore
-from hera.bus import BusConfig, open_session, tcp_endpoint
+from hera.bus import open_session
 from hera.control import EXIT_INJECTED_CRASH, ControlPlane
 from hera.csvlog import CsvLog
 from hera.datapath import DataPath
+from hera.dynamic import restore_measures
 from hera.keys import Keys
-from hera.measure import MeasureContext, MeasureSpec
+from hera.measure import MeasureContext, MeasureSpec, runtime_args
 from hera.nodestatus import node_status
 from hera.peers import Peers
 from hera.plugins import find_measure
+from hera.reload import freeze_runtime
 from hera.resources import Resources
+from hera.security.credentials import CredentialsError, secured
 from hera.services import NodeService, ServiceContext, ServiceFactory, SlotService
 from hera.spec import ClusterSpec
 from hera.store import Store
 from hera.supervisor import Child, Supervisor
+from hera.topology import bus_config
 from hera.worker import Worker
 
+freeze_runtime()  # what is loaded now is the runtime's: a hot reload never replaces it
 log = logging.getLogger("hera.node")
 
 EXIT_ESCALATED = 3
+EXIT_CONFIG = 78
+FATAL = "FATAL: "
+"""Start of the log line that gives the cause before a node exits EXIT_CONFIG."""
 RECOVERY_TIMEOUT = 1.0
-__all__ = ["EXIT_ESCALATED", "EXIT_INJECTED_CRASH", "Node", "run_node"]
+__all__ = [
+    "EXIT_CONFIG",
+    "EXIT_ESCALATED",
+    "EXIT_INJECTED_CRASH",
+    "FATAL",
+    "FatalStart",
+    "Node",
+    "run_node",
+]
+
+
+class FatalStart(RuntimeError):
+    """The node cannot start, and restarting it will not help (see the exit codes)."""
 
 
 class Node:
@@ -69,21 +91,26 @@ class Node:
         name: str,
         run_dir: str | Path | None = None,
         services: Mapping[str, ServiceFactory] | None = None,
+        state_dir: str | Path | None = None,
     ) -> None:
         self.spec = spec
         self.decl = spec.node(name)
         self.name = name
         self.keys = Keys(spec.name)
         self.run_dir = Path(run_dir) if run_dir is not None else None
-        self.store = Store()
+        if state_dir is None and self.run_dir is not None:
+            state_dir = self.run_dir / "state"
+        self.state_dir = Path(state_dir) / name if state_dir is not None else None
+        self.store = Store((n.name for n in spec.nodes), spec.max_names_per_node)
         self.resources = Resources()
         logs = self.run_dir is not None and spec.log_node == name
         self.data = DataPath(
             name,
             self.keys,
             self.store,
-            CsvLog(self.run_dir, self._columns()) if logs else None,
+            CsvLog(self.run_dir, self._columns(), spec.max_open_logs) if logs else None,
             spec.log_names,
+            declared=frozenset((str(m.name), n) for n, m in spec.measures()),
         )
         self.peers = Peers(self.keys)
         self.control = ControlPlane(self)
@@ -96,20 +123,31 @@ class Node:
         self.session: zenoh.Session | None = None
         self.supervisor: Supervisor | None = None
         self.args: ArgsStore | None = None
+        self.decls: dict[str, MeasureSpec] = {}
+        """Every measure the supervisor runs, by name: the spec's and those started at run
+        time (:mod:`hera.dynamic`)."""
 
     # -- life cycle ---------------------------------------------------------------------
     def start(self) -> None:
         """Join the bus, recover state from peers and start the services and measures."""
         self._select_estimation_backend()
-        me = self.spec.endpoint(self.name)
-        others = [tcp_endpoint(self.spec.host, n.port) for n in self.spec.nodes if n.port]
-        bus = BusConfig(
-            listen=(me,), connect=tuple(e for e in others if e != me), lease_ms=self.spec.lease_ms
-        )
-        self.session = s = open_session(bus)
+        try:
+            bus = secured(self.spec, self.name, bus_config(self.spec, self.name))
+        except CredentialsError as e:
+            raise FatalStart(str(e)) from None
+        me = ", ".join(bus.listen) or "no endpoint (a client)"
+        try:
+            self.session = s = open_session(bus)
+        except zenoh.ZError as e:
+            if "Address already in use" in str(e):
+                raise FatalStart(f"its port {me} is in use by another process") from None
+            raise
         self.data.attach(s)
-        state_dir = self.run_dir / "state" / self.name if self.run_dir is not None else None
-        self.args = ArgsStore(self.name, s, self.keys, state_dir)
+        if self.data.csv is not None:  # the logging node keeps every sender's samples
+            self.data.want(self.spec.log_names or None)
+        self.args = ArgsStore(
+            self.name, s, self.keys, self.state_dir, self.spec.max_clock_skew_ms * 1_000_000
+        )
         self._handles.append(
             s.liveliness().declare_subscriber(
                 self.keys.alive_all, self.peers.on_alive, history=True
@@ -125,7 +163,8 @@ class Node:
             on_escalate=self._escalate,
         )
         for m in self.decl.measures:
-            self._add_child(m)
+            self.add_measure(m)
+        restore_measures(self)
         # last: a node that answers status has all its measures registered
         self._handles.append(
             s.declare_queryable(self.keys.ctl(self.name, "*"), self.control.on_query, complete=True)
@@ -144,8 +183,23 @@ class Node:
         if spent:
             log.info("estimation kernels ready in %.2f s", spent)
 
+    def _remember_incarnation(self) -> None:
+        """Read the incarnation of this node's previous process from its state directory
+        (the only one whose seqs it will continue) and write this process's own."""
+        if self.state_dir is None:
+            return
+        path = self.state_dir / "incarnation"
+        with contextlib.suppress(OSError, ValueError):
+            inc, start = path.read_text().split()
+            self.data.previous_incarnation, self.data.previous_start = int(inc), float(start)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(f"{self.data.incarnation} {self.started_at!r}\n")
+        os.replace(tmp, path)
+
     def _recover(self) -> None:
         """Wait briefly for live peers, then fetch args and this node's latest seqs."""
+        self._remember_incarnation()
         expected = {n.name for n in self.spec.nodes} - {self.name}
         self.peers.wait_for(expected, RECOVERY_TIMEOUT)
         if not self.peers.up:
@@ -159,7 +213,7 @@ class Node:
             from hera.plugins import service_factories
 
             self._factories = service_factories()
-        ctx = ServiceContext(self.session, self.keys, self.name, self.spec)
+        ctx = ServiceContext(self.session, self.keys, self.name, self.spec, self.state_dir)
         for name, factory in self._factories.items():
             service = factory(ctx)
             service.start()
@@ -174,14 +228,38 @@ class Node:
             f"(node services: {sorted(self.services) or 'none'})"
         )
 
-    def _add_child(self, decl: MeasureSpec, start: bool = True) -> None:
+    def add_measure(self, decl: MeasureSpec, start: bool = True) -> None:
+        """Supervise a measure of this node (started unless ``start`` is False)."""
         cls = find_measure(decl.use)
         spec = decl.resolve(cls)
-        args = cls.prepare_args(decl.args)  # the original arguments, reused by every restart
-        counters: dict[str, float] = {}
+        args = cls.prepare_args(decl.args)  # refuse bad arguments before the child is added
+        self.data.want(cls.reads(args))  # its node takes the samples it reads
+        self.supervisor.add(Child(spec.name, self.measure_factory(decl, cls), spec.restart), start)
+        self.decls[spec.name] = decl
+
+    def measure_args(self, cls: type, decl: MeasureSpec) -> Mapping[str, Any]:
+        """What a measure's ``init`` receives: the spec's arguments merged with the run-time
+        ones of the args store (``measure/<node>/<name>/<arg>``); the spec's alone, logged,
+        when the merge is refused by the measure's declared arguments."""
+        name = str(decl.resolve(cls).name)
+        extra = runtime_args(self.args.items(), self.name, name) if self.args else {}
+        if extra:
+            try:
+                return cls.prepare_args({**decl.args, **extra})
+            except ValueError as e:
+                log.error("measure %s: ignoring its run-time arguments: %s", name, e)
+        return cls.prepare_args(decl.args)
+
+    def measure_factory(
+        self, decl: MeasureSpec, cls: type, counters: dict[str, float] | None = None
+    ) -> Callable[..., Worker]:
+        """``make(on_exit, gate=None) -> Worker``: a new worker of measure class ``cls`` for
+        ``decl`` (the supervisor calls it at every (re)start; a hot reload with a gate)."""
+        spec = decl.resolve(cls)
+        counters = {} if counters is None else counters
         slots = self._slot_service(spec) if spec.sync else None
 
-        def make(on_exit) -> Worker:
+        def make(on_exit, gate: threading.Event | None = None) -> Worker:
             ctx = MeasureContext(
                 node=self.name,
                 cluster=self.spec.name,
@@ -199,15 +277,17 @@ class Node:
             )
             return Worker(
                 cls,
-                args,
+                self.measure_args(cls, decl),
                 ctx,
                 self.data.publish,
                 on_exit,
                 slot_runner=slots.slot_runner(spec, ctx) if slots is not None else None,
                 halt=self.halt,
+                args_source=lambda: self.measure_args(cls, decl),
+                gate=gate,
             )
 
-        self.supervisor.add(Child(spec.name, make, spec.restart), start=start)
+        return make
 
     def _columns(self) -> dict[str, tuple[str, ...]]:
         """Output columns of every measure of the spec (for the CSV sidecars)."""
@@ -259,14 +339,24 @@ class Node:
         self.stop(EXIT_ESCALATED)
 
 
-def run_node(spec: ClusterSpec, name: str, run_dir: str | None, parent_pid: int | None) -> int:
+def run_node(
+    spec: ClusterSpec,
+    name: str,
+    run_dir: str | None,
+    parent_pid: int | None,
+    state_dir: str | None = None,
+) -> int:
     """Run one node until SIGTERM/SIGINT, a shutdown request, escalation or the death of
     ``parent_pid``; clean up and return the exit code."""
-    node = Node(spec, name, run_dir)
+    node = Node(spec, name, run_dir, state_dir=state_dir)
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: node.stop(0))
     try:
-        node.start()
+        try:
+            node.start()
+        except FatalStart as e:
+            log.error("%s%s", FATAL, e)
+            return EXIT_CONFIG
         while not node.halt.wait(0.25):
             if parent_pid is not None and os.getppid() != parent_pid:
                 log.error("launcher %d is gone; node %s stops", parent_pid, name)

@@ -1,7 +1,9 @@
 """A node's status reply (the ``status`` control verb, ``hera status``, the live view).
 
 JSON-able: the node, its measures (state, restarts, rates, jitter, counters), its store,
-rejected inputs, peers and their events, transit times, args, and each service's status.
+rejected inputs, peers and their events, transit times, args, the recent control verbs that
+changed something (faults injected, measures started, args set, code reloaded) and each
+service's status.
 """
 
 from __future__ import annotations
@@ -43,6 +45,16 @@ def measures_status(node: Node) -> dict[str, dict[str, Any]]:
     return out
 
 
+def rss_mb() -> float | None:
+    """This process's resident memory (MB), from /proc (None where there is none)."""
+    try:
+        with open("/proc/self/statm") as f:
+            pages = int(f.read().split()[1])
+    except (OSError, ValueError, IndexError):
+        return None
+    return round(pages * os.sysconf("SC_PAGE_SIZE") / 1e6, 1)
+
+
 def node_status(node: Node) -> dict[str, Any]:
     """The whole status of ``node`` (see the module docstring)."""
     data = node.data
@@ -51,20 +63,29 @@ def node_status(node: Node) -> dict[str, Any]:
         "cluster": node.spec.name,
         "pid": os.getpid(),
         "uptime_s": round(time.time() - node.started_at, 3),
+        "rss_mb": rss_mb(),
         "escalated": node.supervisor.escalated if node.supervisor else None,
         "measures": measures_status(node),
         "store": {
             "entries": len(node.store.snapshot()),
             "accepted": node.store.accepted,
             "stale": node.store.stale,
+            "takes": node.data.interest,
+            "refused": dict(node.store.refused),
+            "incarnations": node.store.incarnations,
         },
+        "incarnation": data.incarnation,
         "rejected": dict(data.rejected),
+        "refused_sources": data.refused_sources(),
+        "args_rejected": dict(node.args.rejected) if node.args else {},
         "last_rejection": data.last_rejection,
         "peers": node.peers.names(),
         "peer_events": node.peers.event_log(),
         "transit_ms": data.percentiles(),
         "args": len(node.args.items()) if node.args else 0,
         "log_rows": data.csv.rows if data.csv else 0,
+        "log_files_open": data.csv.open_files if data.csv else 0,
+        "control_events": list(node.control.events),
     }
     for name, service in node.services.items():
         try:

@@ -23,8 +23,9 @@ def estimates_panels(
     index: AppIndex,
 ) -> list[Panel]:
     """The panels of the latest estimates in ``samples`` (the ``store`` control verb's
-    samples: name, node, t, values) of the models ``models`` (publication name -> measure
-    class)."""
+    samples: name, node, t, values) of the measures ``models`` (publication name -> measure
+    class): each application's own panel (none if it has none), and a plain one for the
+    models of no application."""
     by_app: dict[Any, list[Estimate]] = defaultdict(list)
     for s in samples:
         cls = models.get(s["name"])
@@ -39,8 +40,12 @@ def estimates_panels(
     panels = []
     for app, estimates in by_app.items():
         estimates.sort(key=lambda e: (*index.rank(e.measure), e.name, e.node))
-        panel = app.panel(estimates, app.truth(world)) if app is not None else None
-        panels.append(panel or plain_panel(estimates))
+        if app is None:
+            panels.append(plain_panel(estimates))
+            continue
+        panel = app.panel(estimates, app.truth(world))
+        if panel is not None:
+            panels.append(panel)
     return panels
 
 
@@ -59,7 +64,18 @@ def plain_panel(estimates: Sequence[Estimate]) -> Panel:
 
 def render_panel(panel: Panel) -> str:
     """The panel as aligned text: its title, a header line and its rows (first column
-    left-aligned, the others right-aligned)."""
+    left-aligned, the others right-aligned). A ``node`` column whose rows all name the same
+    node is dropped and the node named in the title instead."""
+    if "node" in panel.columns and len(panel.rows) > 0:
+        i = panel.columns.index("node")
+        nodes = {r[i] for r in panel.rows if i < len(r) and r[i]}
+        if len(nodes) == 1:
+            keep = [j for j in range(len(panel.columns)) if j != i]
+            panel = Panel(
+                f"{panel.title} on node {nodes.pop()}",
+                tuple(panel.columns[j] for j in keep),
+                tuple(tuple(r[j] for j in keep if j < len(r)) for r in panel.rows),
+            )
     table = [panel.columns, *panel.rows]
     widths = [
         max(len(str(row[i])) if i < len(row) else 0 for row in table)

@@ -46,23 +46,46 @@ def split_stem(stem: str, names: Iterable[str] = ()) -> tuple[str, str]:
     return name, node
 
 
+def _width(path: Path) -> int | None:
+    """The number of values per row the CSV's columns sidecar names, if it has one."""
+    side = path.with_name(path.name.replace(".csv", ".columns.json"))
+    try:
+        return len(json.loads(side.read_text())["columns"]) - 2
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def read_csv(path: Path, name: str, node: str) -> list[Sample]:
-    """Every row of one CSV as samples (t in seconds); RecordingError on a bad row."""
+    """Every row of one CSV as samples (t in seconds); RecordingError naming the file and
+    the row on a row that is not ``seq,timestamp_ms,values...``, has another number of
+    values than the others (or than its columns sidecar says), or is not text."""
     out = []
-    with open(path, newline="") as f:
-        for i, row in enumerate(csv.reader(f), start=1):
-            if not row or not "".join(row).strip():
-                continue
-            try:
-                seq, ts = int(row[0]), float(row[1])
-                values = tuple(float(v) for v in row[2:])
-            except (ValueError, IndexError):
-                raise RecordingError(
-                    f"{path}:{i}: expected seq,timestamp_ms,values...: {','.join(row)[:80]!r}"
-                ) from None
-            if not (math.isfinite(ts) and all(math.isfinite(v) for v in values)):
-                raise RecordingError(f"{path}:{i}: non-finite number")
-            out.append(Sample(name, node, seq, ts / 1000.0, 0.0, 0.0, values))
+    width = _width(path)
+    try:
+        with open(path, newline="") as f:
+            for i, row in enumerate(csv.reader(f), start=1):
+                if not row or not "".join(row).strip():
+                    continue
+                try:
+                    seq, ts = int(row[0]), float(row[1])
+                    values = tuple(float(v) for v in row[2:])
+                except (ValueError, IndexError):
+                    raise RecordingError(
+                        f"{path}:{i}: expected seq,timestamp_ms,values...: {','.join(row)[:80]!r}"
+                    ) from None
+                if not (math.isfinite(ts) and all(math.isfinite(v) for v in values)):
+                    raise RecordingError(f"{path}:{i}: non-finite number")
+                if width is None:
+                    width = len(values)
+                elif len(values) != width:
+                    raise RecordingError(
+                        f"{path}:{i}: {len(values)} values where the rows have {width}"
+                    )
+                out.append(Sample(name, node, seq, ts / 1000.0, 0.0, 0.0, values))
+    except UnicodeDecodeError:
+        raise RecordingError(
+            f"{path}: not a text CSV (a recording is seq,timestamp_ms,...)"
+        ) from None
     return out
 
 

@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import json
 import shutil
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from hera.fusion import FusionMeasure, model_counters, spec_models
+from hera.fusion import FusionMeasure, model_counters, model_outputs, spec_models
 from hera.plugins import find_measure
 from hera.recordings import CsvWriter, read_recordings
 from hera.spec import ClusterSpec
@@ -69,6 +69,7 @@ def replay(
     models: Mapping[str, tuple[str, Mapping[str, Any]]],
     node: str = "replay",
     like: Mapping[str, tuple[float, set[int]]] | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> dict[str, int]:
     """Run each model (name -> (measure use, model params)) over ``recordings``; write its
     estimates to ``out``; return the number of estimates per model.
@@ -76,6 +77,7 @@ def replay(
     ``like`` (model name -> (start, instants), see :func:`live_schedule`) makes a replay of
     a live node: each model starts at the live model's first sample and writes estimates
     only at the live estimates' instants, so the two are compared on the same estimates.
+    ``progress(done, total)`` is told the samples fed so far (all models together).
     """
     instances = {}
     for name, (use, params) in models.items():
@@ -86,20 +88,31 @@ def replay(
     inputs = {n for m in instances.values() for n in m.inputs}
     samples = read_recordings(recordings, inputs, known=inputs)
     counts = {}
+    total, fed = len(samples) * len(instances), 0
     for name, model in instances.items():
         writer = CsvWriter(out, name, node, model.columns)
         t_start, instants = (like or {}).get(name, (float("-inf"), None))
         t_start -= CSV_RESOLUTION_S  # the recordings' times are rounded to the microsecond
         try:
-            for s in samples:
-                if s.t >= t_start and s.name in model.inputs and model.process(s):
-                    t, values = model.estimate()
+            for i, s in enumerate(samples):
+                if progress is not None and i % 5000 == 0:
+                    progress(fed + i, total)
+                if s.t < t_start or s.name not in model.inputs:
+                    continue
+                changed = model.process(s)
+                rows = model_outputs(model)
+                if rows is None:
+                    rows = [model.estimate()] if changed else []
+                for t, values in rows:
                     if instants is None or round(t * 1e6) in instants:
                         writer.write(t, values)
         finally:
             writer.close()
+        fed += len(samples)
         counts[name] = writer.seq
         write_counters(out, name, node, model_counters(model))
+    if progress is not None:
+        progress(total, total)
     src = Path(recordings) / "cluster.json"
     if src.exists() and Path(out).resolve() != Path(recordings).resolve():
         shutil.copy(src, Path(out) / "cluster.json")  # the world, for hera eval

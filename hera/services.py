@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -30,12 +31,14 @@ SlotRunner = Callable[[Callable[[], Any]], "tuple[bool, Any, Any]"]
 
 @dataclass(frozen=True)
 class ServiceContext:
-    """What a service factory is given: the node's session, keys, name and the spec."""
+    """What a service factory is given: the node's session, keys, name and the spec, and
+    the folder where the node persists its state (None: keep everything in memory)."""
 
     session: zenoh.Session
     keys: Keys
     node: str
     spec: ClusterSpec
+    state_dir: Path | None = None
 
 
 @runtime_checkable

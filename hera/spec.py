@@ -22,11 +22,12 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from hera.bus import DEFAULT_LEASE_MS, tcp_endpoint
-from hera.keys import check_chunk
+from hera.bus import DEFAULT_LEASE_MS
+from hera.keys import MAX_CHUNK, check_chunk
 from hera.measure import MEASURE_TABLE, MeasureSpec, default_name
 from hera.schema import (
     ANY,
+    BOOL,
     REQUIRED,
     STR,
     Kind,
@@ -61,13 +62,23 @@ def _chunk(what: str):
             check_chunk(value, what)
         except ValueError:
             raise ValueError(
-                "must use only letters, digits, '_', '.' and '-' (no '/', '*', '$')"
+                f"must use only letters, digits, '_', '.' and '-' (no '/', '*', '$'), at most "
+                f"{MAX_CHUNK} of them"
             ) from None
 
     return check
 
 
 NAME = text(_chunk("name"), "a name")
+
+
+def _endpoint(value: str) -> None:
+    proto, _, rest = value.partition("/")
+    if proto not in ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream") or ":" not in rest:
+        raise ValueError("must be an endpoint like 'tcp/10.0.0.2:7447'")
+
+
+ENDPOINT = text(_endpoint, "an endpoint like 'tcp/10.0.0.2:7447'")
 
 
 def _port_base(v: Any) -> int:
@@ -95,6 +106,44 @@ class NodeSpec:
     measures: tuple[MeasureSpec, ...] = setting(
         (), ANY, "its measures, each a `[[nodes.measures]]` table (see the measure keys)"
     )
+    host: str | None = setting(
+        None, STR, "address of the host it runs on, which it listens on (default: [cluster] host)"
+    )
+    mode: str = setting(
+        "peer",
+        choice("peer", "client"),
+        "`peer` (listens, meshes with the others) or `client` (talks through a router only)",
+    )
+    listen: tuple[str, ...] | None = setting(
+        None, list_of(ENDPOINT, "a list of endpoints"), "its listen endpoints (default: host:port)"
+    )
+    connect: tuple[str, ...] | None = setting(
+        None,
+        list_of(ENDPOINT, "a list of endpoints"),
+        "endpoints it connects to (default: the routers of its host, else every router, "
+        "else every other node)",
+    )
+
+
+@dataclass(frozen=True)
+class RouterSpec:
+    """One Zenoh router: a ``[[routers]]`` entry (``hera router SPEC --name NAME``)."""
+
+    name: str = setting(REQUIRED, NAME, "router name")
+    host: str | None = setting(
+        None, STR, "address of the host it runs on (default: [cluster] host)"
+    )
+    port: int = setting(
+        0, number(0, 65535, integer=True), "TCP port (0: after the nodes' ports, or picked)"
+    )
+    listen: tuple[str, ...] | None = setting(
+        None, list_of(ENDPOINT, "a list of endpoints"), "its listen endpoints (default: host:port)"
+    )
+    connect: tuple[str, ...] | None = setting(
+        None,
+        list_of(ENDPOINT, "a list of endpoints"),
+        "endpoints it connects to (default: every other router)",
+    )
 
 
 @dataclass(frozen=True)
@@ -102,10 +151,13 @@ class ClusterSpec:
     """A whole cluster; ``base_port == 0`` means "pick free ports at launch"."""
 
     nodes: tuple[NodeSpec, ...]
+    routers: tuple[RouterSpec, ...] = ()
     name: str = setting(
         REQUIRED, NAME, "cluster name: the key prefix `hera/<name>/`", table="cluster"
     )
-    host: str = setting("127.0.0.1", STR, "address every node listens on", table="cluster")
+    host: str = setting(
+        "127.0.0.1", STR, "address nodes and routers listen on unless they say", table="cluster"
+    )
     base_port: int = setting(
         0,
         PORT_BASE,
@@ -122,6 +174,12 @@ class ClusterSpec:
         300,
         number(20, 60_000, integer=True),
         "sync leader lease; the longest sync slot is half of it",
+        table="cluster",
+    )
+    multicast_scouting: bool = setting(
+        False,
+        BOOL,
+        "let Zenoh find peers by multicast too (off: explicit endpoints and gossip only)",
         table="cluster",
     )
     estimation_backend: str = setting(
@@ -152,7 +210,8 @@ class ClusterSpec:
     log_node: str | None = setting(
         None,
         NAME,
-        "this node writes `<run-dir>/measures/<name>_<node>.csv` for every sender",
+        "this node writes `<run-dir>/measures/<name>_<node>.csv` for every source the spec "
+        "declares",
         key="node",
         table="logging",
     )
@@ -163,6 +222,53 @@ class ClusterSpec:
         key="names",
         table="logging",
     )
+    auth: bool = setting(
+        True,
+        BOOL,
+        "every link authenticates (user/password from the cluster secret); off only for a "
+        "closed lab",
+        table="security",
+    )
+    tls: bool = setting(
+        False,
+        BOOL,
+        "every link is mutual TLS with the certificates of `certs` (plain TCP refused)",
+        table="security",
+    )
+    certs: str | None = setting(
+        None,
+        STR,
+        "folder made by `hera certs`: the certificates (with `tls`) and the cluster secret "
+        "shared by every host (default: `hera up` makes a secret in the run directory)",
+        table="security",
+    )
+    access_control: bool = setting(
+        True,
+        BOOL,
+        "with `tls`: Zenoh access control on every node and router (a node writes only its "
+        "own keys, only the operator uses the control plane)",
+        table="security",
+    )
+    max_clock_skew_ms: int = setting(
+        1000,
+        number(1, 3_600_000, integer=True),
+        "an args write stamped further ahead of the receiver's clock is refused",
+        table="security",
+    )
+    max_names_per_node: int = setting(
+        256,
+        number(1, 100_000, integer=True),
+        "names a store and the CSV logger take from one node; more are refused",
+        table="security",
+    )
+    max_open_logs: int = setting(
+        64,
+        number(1, 10_000, integer=True),
+        "CSV files the logging node keeps open at once (the least recently used is closed)",
+        table="security",
+    )
+    secret: str | None = None
+    """The cluster secret's file (resolved by ``hera up``: ``certs``' or the run's own)."""
     world: dict[str, Any] = field(default_factory=dict)
     source: str = ""
 
@@ -174,15 +280,22 @@ class ClusterSpec:
         known = ", ".join(n.name for n in self.nodes)
         raise SpecError(f"{self.source}: no node {name!r} in the spec (nodes: {known})")
 
+    def router(self, name: str) -> RouterSpec:
+        """The router called ``name``; SpecError listing the known names otherwise."""
+        for r in self.routers:
+            if r.name == name:
+                return r
+        known = ", ".join(r.name for r in self.routers) or "none"
+        raise SpecError(f"{self.source}: no router {name!r} in the spec (routers: {known})")
+
     def endpoint(self, name: str) -> str:
-        """The TCP endpoint node ``name`` listens on."""
-        n = self.node(name)
-        if not n.port:
-            raise SpecError(
-                f"{self.source}: node {name!r} has no port; set [cluster] base_port "
-                "or start the cluster with 'hera up', which picks free ports"
-            )
-        return tcp_endpoint(self.host, n.port)
+        """The first endpoint node (or router) ``name`` listens on."""
+        from hera.topology import listen_endpoints
+
+        eps = listen_endpoints(self, name)
+        if not eps:
+            raise SpecError(f"{self.source}: {name!r} listens on nothing (a client)")
+        return eps[0]
 
     def sync_groups(self) -> dict[str, list[str]]:
         """Every sync group with the nodes that host its service."""
@@ -197,9 +310,20 @@ class ClusterSpec:
         return [(n.name, m) for n in self.nodes for m in n.measures]
 
     def with_ports(self, ports: list[int]) -> ClusterSpec:
-        """A copy where node i listens on ``ports[i]``."""
-        nodes = tuple(replace(n, port=p) for n, p in zip(self.nodes, ports, strict=True))
-        return replace(self, nodes=nodes)
+        """A copy where node i, then router j, listens on ``ports[i]``, ``ports[n + j]``
+        (one port per node, then per router)."""
+        n = len(self.nodes)
+        nodes = tuple(replace(x, port=p) for x, p in zip(self.nodes, ports[:n], strict=True))
+        routers = tuple(replace(r, port=p) for r, p in zip(self.routers, ports[n:], strict=True))
+        return replace(self, nodes=nodes, routers=routers)
+
+    def with_security(self, **values: Any) -> ClusterSpec:
+        """A copy with the given security settings (``certs``, ``secret``, ``tls`` ...)."""
+        return replace(self, **values)
+
+    def spans_hosts(self) -> bool:
+        """Whether its nodes and routers run on more than one host."""
+        return len({p.host or self.host for p in (*self.nodes, *self.routers)}) > 1
 
     def with_world(self, **values: Any) -> ClusterSpec:
         """A copy with ``values`` added to the world table."""
@@ -213,7 +337,9 @@ class ClusterSpec:
 CLUSTER_TABLE = table_of(ClusterSpec, "[cluster]", table="cluster")
 SUPERVISOR_TABLE = table_of(ClusterSpec, "[supervisor]", table="supervisor")
 LOGGING_TABLE = table_of(ClusterSpec, "[logging]", table="logging")
+SECURITY_TABLE = table_of(ClusterSpec, "[security]", table="security")
 NODE_TABLE = table_of(NodeSpec, "[[nodes]]")
+ROUTER_TABLE = table_of(RouterSpec, "[[routers]]")
 DEFAULTS_TABLE = MEASURE_TABLE.without("use", "name")
 PLACEMENT = Table(
     "[[measures]]",
@@ -232,7 +358,17 @@ PLACEMENT = Table(
         ),
     ],
 )
-TOP_LEVEL = ("cluster", "supervisor", "logging", "world", "defaults", "nodes", "measures")
+TOP_LEVEL = (
+    "cluster",
+    "supervisor",
+    "logging",
+    "security",
+    "world",
+    "defaults",
+    "nodes",
+    "routers",
+    "measures",
+)
 
 
 def reference() -> str:
@@ -242,7 +378,9 @@ def reference() -> str:
         ("`[cluster]`", CLUSTER_TABLE),
         ("`[supervisor]`", SUPERVISOR_TABLE),
         ("`[logging]`", LOGGING_TABLE),
+        ("`[security]`", SECURITY_TABLE),
         ("`[[nodes]]`", NODE_TABLE),
+        ("`[[routers]]`", ROUTER_TABLE),
         ("`[[nodes.measures]]`, `[[measures]]` (and `[defaults]`, all but use and name)", None),
         ("`[[measures]]` only", PLACEMENT),
     ):
@@ -274,17 +412,28 @@ def load_spec(path: str | Path) -> ClusterSpec:
 def from_resolved(raw: dict[str, Any]) -> ClusterSpec:
     """The spec of a resolved JSON (:meth:`ClusterSpec.to_json`)."""
     raw = dict(raw)
+
+    def tup(v: Any) -> tuple | None:
+        return None if v is None else tuple(v)
+
     nodes = tuple(
         NodeSpec(
-            n["name"],
-            n["port"],
-            tuple(n["sync_hosts"]),
-            tuple(MeasureSpec(**m) for m in n["measures"]),
+            **{
+                **n,
+                "sync_hosts": tuple(n["sync_hosts"]),
+                "measures": tuple(MeasureSpec(**m) for m in n["measures"]),
+                "listen": tup(n.get("listen")),
+                "connect": tup(n.get("connect")),
+            }
         )
         for n in raw.pop("nodes")
     )
+    routers = tuple(
+        RouterSpec(**{**r, "listen": tup(r.get("listen")), "connect": tup(r.get("connect"))})
+        for r in raw.pop("routers", [])
+    )
     raw["log_names"] = tuple(raw["log_names"])
-    return ClusterSpec(nodes=nodes, **raw)
+    return ClusterSpec(nodes=nodes, routers=routers, **raw)
 
 
 def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
@@ -302,6 +451,9 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
     cluster = CLUSTER_TABLE.parse(data.get("cluster"), where("[cluster]"), problems)
     sup = SUPERVISOR_TABLE.parse(data.get("supervisor"), where("[supervisor]"), problems)
     logging_t = LOGGING_TABLE.parse(data.get("logging"), where("[logging]"), problems)
+    security = SECURITY_TABLE.parse(data.get("security"), where("[security]"), problems)
+    if security.get("certs"):
+        security["certs"] = str((Path(source).parent / security["certs"]).resolve())
     defaults = DEFAULTS_TABLE.parse(
         data.get("defaults"), where("[defaults]"), problems, defaults=False
     )
@@ -320,6 +472,7 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
         here = where(f"[[nodes]] #{i}" + (f" ({label})" if isinstance(label, str) else ""))
         n = NODE_TABLE.parse(raw, here, problems)
         if "name" in n:
+            n.pop("measures", None)
             n["_where"], n["_raw_measures"] = here, (raw or {}).get("measures", [])
             nodes.append(n)
     names = [n["name"] for n in nodes]
@@ -391,12 +544,61 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
         for dup in sorted({x for x in pub if pub.count(x) > 1}):
             problems.append(f"{source}: node {n['name']}: two measures publish as {dup!r}")
         port = n.get("port") or (base_port + i if base_port else 0)
-        built.append(NodeSpec(n["name"], port, n.get("sync_hosts", ()), tuple(ms)))
+        fields = {k: v for k, v in n.items() if k not in ("name", "port", "measures")}
+        built.append(NodeSpec(n["name"], port, measures=tuple(ms), **fields))
+    routers = []
+    raw_routers = data.get("routers", [])
+    if not isinstance(raw_routers, list):
+        problems.append(f"{source}: [[routers]] must be a list of tables")
+        raw_routers = []
+    for j, raw in enumerate(raw_routers, start=1):
+        label = raw.get("name") if isinstance(raw, dict) else None
+        here = where(f"[[routers]] #{j}" + (f" ({label})" if isinstance(label, str) else ""))
+        r = ROUTER_TABLE.parse(raw, here, problems)
+        if "name" in r:
+            if not r.get("port") and base_port:
+                r["port"] = base_port + len(nodes) + j - 1
+            routers.append(RouterSpec(**r))
+    every = [n.name for n in built] + [r.name for r in routers]
+    for dup in sorted({x for x in every if every.count(x) > 1} - set(names)):
+        problems.append(f"{source}: [[routers]]: the name {dup!r} is used twice")
+    for dup in sorted({r.name for r in routers} & set(names)):
+        problems.append(f"{source}: [[routers]]: {dup!r} is the name of a node too")
+    hosts = [
+        (x.host or cluster.get("host", "127.0.0.1"), x.port, x.name) for x in [*built, *routers]
+    ]
+    seen: dict[tuple[str, int], list[str]] = {}
+    for host, port, name in hosts:
+        if port:
+            seen.setdefault((host, port), []).append(name)
+    for (host, port), users in sorted(seen.items()):
+        if len(users) > 1:
+            problems.append(f"{source}: {users} all listen on {host}:{port}")
+    spread = {h for h, _, _ in hosts}
+    unset = [n for h, p, n in hosts if not p]
+    if len(spread) > 1 and unset:
+        problems.append(
+            f"{source}: the spec spans the hosts {sorted(spread)}, so every node and router "
+            f"needs a fixed port: set [cluster] base_port or a port for {unset}"
+        )
+    for n in built:
+        if n.mode == "client" and not routers and n.connect is None:
+            problems.append(
+                f"{source}: node {n.name!r} is a client, which talks through a router: add a "
+                "[[routers]] entry or give it connect endpoints"
+            )
     log_node = logging_t.get("log_node")
     if log_node is not None and log_node not in per_node:
         problems.append(f"{source}: [logging]: node {log_node!r} is not a node of the spec")
     if problems:
         raise SpecError(problems)
     return ClusterSpec(
-        nodes=tuple(built), world=dict(world), source=source, **cluster, **sup, **logging_t
+        nodes=tuple(built),
+        routers=tuple(routers),
+        world=dict(world),
+        source=source,
+        **cluster,
+        **sup,
+        **logging_t,
+        **security,
     )

@@ -1,8 +1,16 @@
 """The latest-value store every node keeps (ARCHITECTURE.md part 2, REFERENCE "Core").
 
 It holds the latest sample per (name, node): seq, measurement time, arrival time, values.
-A sample is accepted only if its seq is strictly greater than the one held for that
-(name, node), so duplicates and stale or reordered deliveries never overwrite fresher data.
+Within one incarnation of its producer (a random id drawn at each start of its process,
+:mod:`hera.wire`), a sample is accepted only if its seq is strictly greater than the one
+held for that (name, node), so duplicates and stale or reordered deliveries never overwrite
+fresher data. A sample of another incarnation is taken as the producer's restart and
+accepted: neither a restart nor a forged huge seq can freeze a source (a forger's sample is
+replaced by the real producer's next one; access control keeps forgers off the bus).
+
+A store may be bounded: it takes samples only from the cluster's ``nodes`` and at most
+``max_names_per_node`` names from each; every refusal is counted with its reason
+(``stale``, ``unknown_node``, ``too_many_names``).
 Samples are never consumed: readers filter by age, by measurement time, or with a
 :class:`Cursor` that remembers the seqs it has already used. All methods are thread-safe.
 """
@@ -34,6 +42,7 @@ class Sample:
     arrival_wall: float
     values: tuple[float, ...]
     grant: tuple[int, int] | None = None
+    inc: int = 0
 
     def age(self, now: float | None = None) -> float:
         """Seconds since arrival on this node's monotonic clock."""
@@ -41,26 +50,55 @@ class Sample:
 
 
 class Store:
-    """Thread-safe latest sample per (name, node)."""
+    """Thread-safe latest sample per (name, node), optionally bounded (module docstring)."""
 
-    def __init__(self) -> None:
+    def __init__(
+        self, nodes: Iterable[str] | None = None, max_names_per_node: int | None = None
+    ) -> None:
         self._data: dict[str, dict[str, Sample]] = {}
         self._cond = threading.Condition()
         self._version = 0
         self._listeners: tuple = ()
+        self._nodes = None if nodes is None else frozenset(nodes)
+        self._max_names = max_names_per_node
+        self._names_of: dict[str, int] = {}
         self.accepted = 0
         self.stale = 0
+        self.incarnations = 0
+        self.refused: dict[str, int] = {}
 
     def offer(self, name: str, node: str, msg: Message, arrival: float | None = None) -> bool:
-        """Store ``msg`` for (name, node) if its seq is newer; return whether it was kept."""
+        """Store ``msg`` for (name, node) if it is newer; return whether it was kept."""
+        return self.offer_why(name, node, msg, arrival) is None
+
+    def offer_why(
+        self, name: str, node: str, msg: Message, arrival: float | None = None
+    ) -> str | None:
+        """Store ``msg`` for (name, node) if it is newer; None when kept, else the reason
+        it was refused: ``stale`` (not newer within its incarnation), ``unknown_node`` (not
+        a node of the cluster) or ``too_many_names`` (its node's quota of names is full)."""
         mono = time.monotonic() if arrival is None else arrival
-        sample = Sample(name, node, msg.seq, msg.t, mono, time.time(), msg.values, msg.grant)
+        sample = Sample(
+            name, node, msg.seq, msg.t, mono, time.time(), msg.values, msg.grant, msg.inc
+        )
         with self._cond:
-            per_name = self._data.setdefault(name, {})
-            held = per_name.get(node)
-            if held is not None and held.seq >= msg.seq:
-                self.stale += 1
-                return False
+            per_name = self._data.get(name)
+            held = per_name.get(node) if per_name is not None else None
+            if held is None:
+                why = self._admit(node)
+                if why is not None:
+                    self.refused[why] = self.refused.get(why, 0) + 1
+                    return why
+                if per_name is None:
+                    per_name = self._data[name] = {}
+                self._names_of[node] = self._names_of.get(node, 0) + 1
+            elif held.inc == msg.inc:
+                if held.seq >= msg.seq:
+                    self.stale += 1
+                    self.refused["stale"] = self.refused.get("stale", 0) + 1
+                    return "stale"
+            else:
+                self.incarnations += 1
             per_name[node] = sample
             self.accepted += 1
             self._version += 1
@@ -68,7 +106,15 @@ class Store:
             listeners = self._listeners
         for fn in listeners:
             fn(sample)
-        return True
+        return None
+
+    def _admit(self, node: str) -> str | None:
+        """Why a new source of ``node`` cannot be taken, or None (lock held)."""
+        if self._nodes is not None and node not in self._nodes:
+            return "unknown_node"
+        if self._max_names is not None and self._names_of.get(node, 0) >= self._max_names:
+            return "too_many_names"
+        return None
 
     def add_listener(self, fn: Callable[[Sample], None]) -> None:
         """Call ``fn(sample)`` for every sample accepted from now on (on the caller's thread
@@ -113,10 +159,12 @@ class Store:
         s = self.get_one(name, node)
         return 0 if s is None else s.seq
 
-    def seqs_of_node(self, node: str) -> dict[str, int]:
-        """Every name this store holds from ``node``, with its seq."""
+    def seqs_of_node(self, node: str) -> dict[str, tuple[int, int]]:
+        """Every name this store holds from ``node``, with its (incarnation, seq)."""
         with self._cond:
-            return {n: per[node].seq for n, per in self._data.items() if node in per}
+            return {
+                n: (per[node].inc, per[node].seq) for n, per in self._data.items() if node in per
+            }
 
     def names(self) -> list[str]:
         """The names held, sorted."""
@@ -150,19 +198,21 @@ class Store:
 
 
 class Cursor:
-    """Remembers the seq it last returned per (name, node): "newer than what I used last"."""
+    """Remembers the (incarnation, seq) it last returned per (name, node): "newer than what
+    I used last" (a sample of a new incarnation is new)."""
 
     def __init__(self, store: Store, names: Iterable[str]) -> None:
         self._store = store
         self._names = tuple(names)
-        self._used: dict[tuple[str, str], int] = {}
+        self._used: dict[tuple[str, str], tuple[int, int]] = {}
 
     def new(self, max_age: float | None = None) -> list[Sample]:
         """Samples not returned before (and at most ``max_age`` s old), marking them used."""
         out = []
         for name in self._names:
             for s in self._store.fresh(name, max_age=max_age):
-                if s.seq > self._used.get((name, s.node), 0):
-                    self._used[(name, s.node)] = s.seq
+                inc, seq = self._used.get((name, s.node), (s.inc, 0))
+                if inc != s.inc or s.seq > seq:
+                    self._used[(name, s.node)] = (s.inc, s.seq)
                     out.append(s)
         return out

@@ -78,8 +78,16 @@ class Child:
         return round((w.first_step_at - self.last_exit_at) * 1e3, 3)
 
 
+IDLE_WAKE = 1.0
+"""The longest the supervisor's watcher sleeps when no hang can come sooner."""
+
+
 class Supervisor:
-    """Starts, watches and restarts :class:`Child` workers; see the module docstring."""
+    """Starts, watches and restarts :class:`Child` workers; see the module docstring.
+
+    ``hang_check``: the shortest the watcher sleeps between two looks for hung steps (it
+    sleeps until the next step could have hung, at most :data:`IDLE_WAKE` s).
+    """
 
     def __init__(
         self,
@@ -87,7 +95,7 @@ class Supervisor:
         period: float = 60.0,
         strategy: str = "one_for_one",
         on_escalate: Callable[[str], None] | None = None,
-        hang_check: float = 0.02,
+        hang_check: float = 0.005,
     ) -> None:
         if strategy not in STRATEGIES:
             raise ValueError(f"strategy must be one of {STRATEGIES}, got {strategy!r}")
@@ -138,6 +146,36 @@ class Supervisor:
                 child.worker.stop()
             child.state = "stopped"
 
+    def remove(self, child_id: str) -> Child:
+        """Stop a child and forget it (a measure added at run time, stopped for good)."""
+        with self._lock:
+            self.stop_child(child_id)
+            return self.children.pop(child_id)
+
+    def replace(
+        self,
+        child_id: str,
+        worker: Worker,
+        start: Callable[[Callable[[Worker, BaseException | None], None]], Worker],
+    ) -> Worker | None:
+        """Hand a child to ``worker`` (already started; its ends must be reported to
+        :meth:`exited`) and make ``start`` its factory for later restarts. The previous
+        worker is abandoned (it never publishes again), asked to stop and returned."""
+        with self._lock:
+            child = self._get(child_id)
+            old, child.worker, child.start = child.worker, worker, start
+            child.state = "running"
+            child.stopped_by_request = False
+            self._pending = [p for p in self._pending if p[1] is not child]
+            if old is not None:
+                old.abandoned = True
+                old.stop()
+            return old
+
+    def exited(self, worker: Worker, error: BaseException | None) -> None:
+        """Report the end of one of the children's workers (the ``on_exit`` of workers)."""
+        self._events.put((worker, error))
+
     def worker(self, child_id: str) -> Worker:
         """The running worker of a child (for fault injection)."""
         with self._lock:
@@ -169,16 +207,13 @@ class Supervisor:
 
     def _start(self, child: Child) -> None:
         child.stopped_by_request = False
-        child.worker = child.start(self._exited)
+        child.worker = child.start(self.exited)
         child.state = "running"
         child.worker.start()
 
-    def _exited(self, worker: Worker, error: BaseException | None) -> None:
-        self._events.put((worker, error))
-
     def _watch(self) -> None:
+        timeout = self._hang_check
         while True:
-            timeout = self._hang_check
             if self._pending:
                 due = min(p[0] for p in self._pending) - time.monotonic()
                 timeout = max(0.0, min(timeout, due))
@@ -194,7 +229,7 @@ class Supervisor:
                 if event:
                     self._handle_exit(*event)
                 self._start_due()
-                self._check_hangs()
+                timeout = max(self._hang_check, self._check_hangs())
 
     def _start_due(self) -> None:
         now = time.monotonic()
@@ -230,14 +265,19 @@ class Supervisor:
             reason = f"crashed: {worker.error}"
         self._restart(child, reason)
 
-    def _check_hangs(self) -> None:
+    def _check_hangs(self) -> float:
+        """Replace the workers whose step has run longer than its limit; return how long
+        until the next one could (a step starting now, or the running ones), at most
+        :data:`IDLE_WAKE` s: the watcher sleeps that long, not a fixed short tick."""
         now = time.monotonic()
+        wake = IDLE_WAKE
         for child in list(self.children.values()):
             w = child.worker
             if w is None or child.state != "running" or w.abandoned:
                 continue
             started = w.step_started
             limit = max(w.spec.hang_factor * w.spec.period, w.spec.hang_min)
+            wake = min(wake, limit if started is None else limit - (now - started))
             if started is not None and now - started > limit:
                 w.abandoned = True
                 w.stop()
@@ -246,6 +286,7 @@ class Supervisor:
                 child.last_error = f"hung: step running for {now - started:.2f} s > {limit:.2f} s"
                 log.warning("measure %s %s; replacing it", child.id, child.last_error)
                 self._restart(child, child.last_error)
+        return max(0.0, wake)
 
     def _restart(self, child: Child, reason: str) -> None:
         now = time.monotonic()

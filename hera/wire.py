@@ -11,10 +11,14 @@ key        msgpack type                meaning
 ``t``      float                       measurement time, producer's clock, epoch seconds
 ``val``    array of float/int          the values, in the measure's documented units
 ``grant``  array [int, int], optional  (epoch, token) of the sync grant it was taken under
+``inc``    int in [0, 2**63), optional  producer's incarnation: a random id drawn at each
+                                       start of its process (absent: 0)
 =========  ==========================  ================================================
 
 Unknown extra keys are ignored (forward compatible). Anything else is rejected with a
-:class:`WireError` that says what was wrong.
+:class:`WireError` that says what was wrong. A store orders the samples of one source
+(name, node) by seq within an incarnation and takes a new incarnation as a restart, so
+neither a restart nor a forged huge seq can freeze a source (:mod:`hera.store`).
 """
 
 from __future__ import annotations
@@ -27,7 +31,8 @@ import msgpack
 FORMAT_VERSION = 1
 MAX_PAYLOAD_BYTES = 16 * 1024
 MAX_VALUES = 256
-_MAX_SEQ = 2**63 - 1
+MAX_SEQ = 2**63 - 1
+_MAX_SEQ = MAX_SEQ
 
 
 class WireError(ValueError):
@@ -42,15 +47,21 @@ class Message:
     t: float
     values: tuple[float, ...]
     grant: tuple[int, int] | None = None
+    inc: int = 0
 
 
-def encode(seq: int, t: float, values: list[float] | tuple[float, ...], grant=None) -> bytes:
+def encode(
+    seq: int, t: float, values: list[float] | tuple[float, ...], grant=None, inc: int = 0
+) -> bytes:
     """Encode one sample as a version-1 payload; raises WireError on values it cannot carry."""
     vals = [float(v) for v in values]
     msg = {"v": FORMAT_VERSION, "seq": int(seq), "t": float(t), "val": vals}
     if grant is not None:
         msg["grant"] = [int(grant[0]), int(grant[1])]
+    if inc:
+        msg["inc"] = int(inc)
     _check(msg["seq"], msg["t"], vals)
+    _check_inc(msg.get("inc", 0))
     return msgpack.packb(msg, use_bin_type=True)
 
 
@@ -66,6 +77,11 @@ def _check(seq, t, vals) -> None:
             raise WireError(f"val[{i}] must be a number, got {type(v).__name__}")
         if not math.isfinite(v):
             raise WireError(f"val[{i}] is not finite: {v!r}")
+
+
+def _check_inc(inc) -> None:
+    if not isinstance(inc, int) or isinstance(inc, bool) or not 0 <= inc <= _MAX_SEQ:
+        raise WireError(f"inc must be an integer in [0, 2**63), got {inc!r}")
 
 
 def decode(payload: bytes) -> Message:
@@ -97,4 +113,6 @@ def decode(payload: bytes) -> Message:
         ):
             raise WireError(f"grant must be [epoch, token] integers, got {grant!r}")
         grant = (grant[0], grant[1])
-    return Message(msg["seq"], float(msg["t"]), tuple(float(v) for v in vals), grant)
+    inc = msg.get("inc", 0)
+    _check_inc(inc)
+    return Message(msg["seq"], float(msg["t"]), tuple(float(v) for v in vals), grant, inc)

@@ -19,7 +19,7 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from hera.measure import Measure, MeasureContext, Reading
+from hera.measure import Measure, MeasureContext, Reading, own_keys
 
 log = logging.getLogger("hera.worker")
 
@@ -85,6 +85,8 @@ class Worker:
         on_exit: Callable[[Worker, BaseException | None], None],
         slot_runner: SlotRunner | None = None,
         halt: threading.Event | None = None,
+        args_source: Callable[[], Mapping[str, Any]] | None = None,
+        gate: threading.Event | None = None,
     ) -> None:
         self.id = next(self._ids)
         self.measure_cls = measure_cls
@@ -104,6 +106,15 @@ class Worker:
         self._stop = threading.Event()
         self._halt = halt or threading.Event()
         self._fault: str | None = None
+        self._args_source = args_source
+        self._gate = gate
+        self._changes: dict[str, Any] = {}
+        self._changes_lock = threading.Lock()
+        self.measure: Measure | None = None
+        self.ready = threading.Event()
+        """Set once ``init`` has returned (a gated worker then waits for its gate)."""
+        self.handover: tuple[str, Mapping[str, Any]] | None = None
+        """(old version, old state) for :meth:`Measure.code_change`, set before the gate."""
         self.thread = threading.Thread(
             target=self._run, name=f"measure-{self.spec.name}-{self.id}", daemon=True
         )
@@ -124,12 +135,18 @@ class Worker:
         self._fault = fault
 
     def _run(self) -> None:
-        measure: Measure | None = None
         error: BaseException | None = None
+        unfollow = None
         try:
-            measure = self.measure_cls()
-            measure.init(self.args, self.ctx)
-            self._loop(measure)
+            self.measure = self.measure_cls()
+            self.measure.init(self.args, self.ctx)
+            unfollow = self._follow_args()
+            self.ready.set()
+            if self._gate is not None and not self._wait_gate():
+                return
+            if self.handover is not None:
+                self.measure.code_change(*self.handover)
+            self._loop()
         except BaseException as e:  # reported to the supervisor, which decides
             error = e
             self.error = f"{type(e).__name__}: {e}"
@@ -141,16 +158,56 @@ class Worker:
                     "".join(traceback.format_exception(e)[-3:]),
                 )
         finally:
-            if measure is not None:
+            if unfollow is not None:
+                unfollow()
+            if self.measure is not None:
                 try:
-                    measure.close()
+                    self.measure.close()
                 except Exception as e:
                     log.warning("measure %s close() failed: %s", self.spec.name, e)
             self.step_started = None
             self.ended_at = time.monotonic()
             self._on_exit(self, error)
 
-    def _loop(self, measure: Measure) -> None:
+    def _wait_gate(self) -> bool:
+        """Wait for the gate; False if the worker was stopped first."""
+        while not self._gate.wait(0.02):
+            if self._stop.is_set() or self.abandoned:
+                return False
+        return not (self._stop.is_set() or self.abandoned)
+
+    def _follow_args(self) -> Callable[[], None] | None:
+        """Collect changes of the measure's own args keys for its next step; return the
+        function that stops collecting."""
+        store = self.ctx.args
+        if store is None or not hasattr(store, "add_listener"):
+            return None
+        calib, prefix = own_keys(self.ctx.node, self.spec.name)
+
+        def on_change(key: str, value: Any, deleted: bool) -> None:
+            if threading.current_thread() is self.thread:
+                return  # the measure's own write
+            if key == calib or key.startswith(prefix):
+                with self._changes_lock:
+                    self._changes[key] = None if deleted else value
+
+        store.add_listener(on_change)
+        return lambda: store.remove_listener(on_change)
+
+    def _apply_changes(self) -> None:
+        """Tell the measure about changed keys; re-create it unless it applied them."""
+        with self._changes_lock:
+            changes, self._changes = self._changes, {}
+        if self.measure.args_changed(changes):
+            return
+        log.info("measure %s: %s changed; re-creating it", self.spec.name, ", ".join(changes))
+        args = self._args_source() if self._args_source is not None else self.args
+        old, self.measure = self.measure, None
+        old.close()
+        self.measure = self.measure_cls()
+        self.measure.init(args, self.ctx)
+
+    def _loop(self) -> None:
         period = self.spec.period
         remaining = self.spec.steps
         start = time.monotonic()
@@ -167,8 +224,10 @@ class Worker:
                 self.stats.overruns += missed
                 k += missed
                 deadline = start + k * period
+            if self._changes:
+                self._apply_changes()
             self.stats.lateness.append(now - deadline)
-            self._step(measure)
+            self._step(self.measure)
             k += 1
             if remaining is not None:
                 remaining -= 1

@@ -5,8 +5,10 @@ Every simulated sonar of a group announces each ping on ``hera/<cluster>/sim/air
 epoch seconds, ``pos`` the sonar position [x, y, z] m, ``grant`` [epoch, token] or nil), and
 listens to the others. A ping whose interval overlaps another sender's ping is corrupted, as
 with real MaxSonars sounding together. Sonars of one process sharing an :class:`Air` see each
-other directly; others arrive through Zenoh (same host or not: wall clocks must then agree,
-e.g. by NTP, to well under a ping).
+other directly; others arrive through Zenoh (same host or not: across hosts the wall clocks
+must then agree to about 0.5 ms, the gap between consecutive synchronised pings, e.g. by
+PTP, for the air to tell turns apart; NTP's few ms are not enough). ``start`` is the clock
+reading of the sonar's trigger-time check (``hera.sync.client.Turn``).
 """
 
 from __future__ import annotations

@@ -150,8 +150,10 @@ def _seed(ctx: MeasureContext, args: Mapping[str, Any], kind: str, name: str) ->
     return stable_seed(kind, ctx.node, name, seed)
 
 
-def _driver(args: Mapping[str, Any], protocol: type, what: str) -> Board | None:
-    """The real driver the args name (``driver``, ``driver_args``), or None."""
+def load_driver(args: Mapping[str, Any], protocol: type, what: str) -> Board | None:
+    """The real driver the args name (``driver``, ``driver_args``), or None; ValueError when
+    it does not load or does not implement ``protocol`` (named ``what``). Board families in
+    their own packages use it too."""
     target = args.get("driver")
     if target is None:
         return None
@@ -179,7 +181,7 @@ def open_nav(ctx: MeasureContext, args: Mapping[str, Any]) -> NavDriver:
             if not isinstance(b, NavDriver):
                 raise ValueError(f"board {bid!r} is not a Pmod NAV driver")
             return b
-        board = _driver(args, NavDriver, "NavDriver") or SimNavBoard(
+        board = load_driver(args, NavDriver, "NavDriver") or SimNavBoard(
             bid,
             make_scenario(ctx.world),
             environment(ctx.world),
@@ -228,7 +230,7 @@ def open_sonar(ctx: MeasureContext, args: Mapping[str, Any]) -> SonarDriver:
             if not isinstance(b, SonarDriver):
                 raise ValueError(f"board {bid!r} is not a MaxSonar driver")
             return b
-        real = _driver(args, SonarDriver, "SonarDriver")
+        real = load_driver(args, SonarDriver, "SonarDriver")
         if real is not None:
             return boards.register(real, bid)
         table = dict(args.get("model") or {})

@@ -106,9 +106,13 @@ class SonarDriver(Protocol):
         ...
 
     def read_sample(self, grant: Any = None) -> RangeSample:
-        """Ping once: the range with the time of the ping. ``grant`` is the sync grant the
-        ping runs under (None when not synchronised); a driver checks it right at the
-        trigger when it can, and a simulated one announces it with the ping."""
+        """Ping once: the range with the time of the ping.
+
+        ``grant``: in a synchronised step, the sync turn (``hera.sync.client.Turn``): call
+        ``grant.check_at_trigger(time.time)`` right before triggering the ping (after any
+        lock) and stamp the sample with its ``wall`` reading; it raises ``SlotLost`` when
+        the ping no longer fits its slot: then do not ping. None when not synchronised.
+        """
         ...
 
 
@@ -161,5 +165,5 @@ class SonarDriverBase(ABC):
     def read_range(self) -> int: ...
 
     def read_sample(self, grant: Any = None) -> RangeSample:
-        t = time.time()
-        return RangeSample(t, self.read_range())
+        t = time.time() if grant is None else grant.check_at_trigger(time.time).wall
+        return RangeSample(t, self.read_range())  # read_range triggers the ping

@@ -108,12 +108,16 @@ class SimMaxSonar:
         return self.read_sample().inches
 
     def read_sample(self, grant: Any = None) -> RangeSample:
-        """Ping once (blocking ``ping_ms`` if ``block``) and return the reading."""
+        """Ping once (blocking ``ping_ms`` if ``block``) and return the reading.
+
+        ``grant``: the sync turn (``hera.sync.client.Turn``) of a synchronised step. Its fit
+        check runs right at the trigger, and the ping starts at that same clock reading;
+        ``SlotLost`` from it propagates (no ping)."""
         with self._lock:
-            t = self.clock()
+            ping_s = self.model.ping_ms / 1000.0
+            t = self.clock() if grant is None else grant.check_at_trigger(self.clock, ping_s).wall
             rng = self.rand.rng("range", t)
             self.faults.before_read("range", rng)
-            ping_s = self.model.ping_ms / 1000.0
             ping = Ping(self.sender, t, t + ping_s, self.mount.position)
             mono0 = time.monotonic()
             if self.air is not None:

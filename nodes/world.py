@@ -475,7 +475,11 @@ class ScenarioKind:
 
 
 _REGISTRY: dict[str, ScenarioKind] = {}
-EXTRA_SCENARIOS: tuple[str, ...] = ()
+EXTRA_SCENARIOS: tuple[str, ...] = (
+    "hera.nodes.ir.scenarios",
+    "hera.nodes.tof.scenario",
+    "hera.nodes.lsm6dsl.scenario",
+)
 """Modules defining more scenarios (each calls :func:`register_scenario` when imported);
 imported on first use of the registry. An application's simulated world adds its module
 here."""

@@ -1,7 +1,9 @@
-"""The measure's side of the sync service: ask for a slot, check it, fire, give it back.
+"""The measure's side of the sync service: ask for a slot, check it at the trigger, fire,
+give it back after the sound.
 
 :class:`SyncClient` implements :class:`hera.measure.SlotClient`; :func:`run_in_slot` is the
-whole step of a synchronised worker.
+whole step of a synchronised worker, and hands the step a :class:`Turn`, whose
+:meth:`Turn.check_at_trigger` the driver calls right at its physical trigger.
 """
 
 from __future__ import annotations
@@ -11,28 +13,33 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import zenoh
-from hera.sync.election import Timing
-from hera.sync.protocol import AcquireRequest, GrantReply, ProtocolError, Release
 
 from hera.keys import Keys
+from hera.sync import clock as sync_clock
+from hera.sync.election import Timing
+from hera.sync.protocol import AcquireRequest, GrantReply, ProtocolError, Release
 
 log = logging.getLogger("hera.sync")
 
 RETRY_PAUSE = 0.01
 """Pause before asking again when no host is granting (no leader, or a leader change)."""
 
+Clock = Callable[[], float]
+T = TypeVar("T")
+
 
 @dataclass(frozen=True, slots=True)
 class Grant:
     """A slot granted to ``holder`` (implements :class:`hera.measure.SlotGrant`).
 
-    - ``epoch``, ``token``: the term and the fencing token (strictly increasing) it was
-      granted under; samples taken in the slot carry them;
+    - ``epoch``, ``token``: the term and the token (strictly increasing; an audit label)
+      it was granted under; samples taken in the slot carry them;
     - ``duration``: seconds of lease, counted from ``asked_at``;
-    - ``asked_at``: this process's ``time.monotonic()`` just before the request was sent.
+    - ``asked_at``: this process's :func:`hera.sync.clock.now` just before the request was
+      sent.
     """
 
     group: str
@@ -45,25 +52,110 @@ class Grant:
 
     @property
     def deadline(self) -> float:
-        """When the lease runs out, on this process's monotonic clock."""
+        """When the lease runs out, on this process's sync clock."""
         return self.asked_at + self.duration
 
     def fits(self, seconds: float, now: float | None = None) -> bool:
         """True if something lasting ``seconds`` started ``now`` ends within the lease."""
-        t = time.monotonic() if now is None else now
+        t = sync_clock.now() if now is None else now
         return t + seconds <= self.deadline
-
-    def require(self, seconds: float, now: float | None = None) -> None:
-        """The trigger-time check (see :func:`run_in_slot`): raise :class:`SlotLost` unless
-        something lasting ``seconds`` started ``now`` ends within the lease."""
-        if not self.fits(seconds, now):
-            raise SlotLost
 
 
 class SlotLost(Exception):
-    """Raised by a firing function that finds, at its trigger instant, that its step no
-    longer fits the lease (a thread switch or a pause between :func:`run_in_slot`'s check
-    and the trigger ate the slack): :func:`run_in_slot` then gives the slot back unused."""
+    """Raised by :meth:`Turn.check_at_trigger` when, at the trigger, the sound no longer
+    fits the lease (a pause since the grant ate the slack): :func:`run_in_slot` then gives
+    the slot back unused."""
+
+
+@dataclass(frozen=True, slots=True)
+class TriggerTime:
+    """The clock read by the trigger-time check (``clock``, the sync clock) and, read right
+    after it, the wall clock (``wall``, epoch seconds; None if not asked for): the start
+    time a driver announces and stamps its sample with."""
+
+    clock: float
+    wall: float | None
+
+
+class Turn:
+    """One granted slot as the driver sees it (it also carries ``epoch`` and ``token``, so
+    it serves as :class:`hera.measure.SlotGrant`).
+
+    The driver calls :meth:`check_at_trigger` (or :meth:`fire`) right before its physical
+    trigger, after taking any lock and preparing everything: the check reads the clock
+    once, and the sound starts at that reading. Anything that pauses the process before
+    the check (the measure's own code, a lock, a GC pause) is caught; only a pause between
+    the check and the trigger instruction is not, and the margin bounds it
+    (``Timing.trigger_pause``). One trigger per turn.
+    """
+
+    __slots__ = ("grant", "seconds", "clock", "fired_at", "lasts")
+
+    def __init__(self, grant: Grant, seconds: float, clock: Clock = sync_clock.now) -> None:
+        self.grant = grant
+        self.seconds = seconds
+        self.clock = clock
+        self.fired_at: float | None = None
+        self.lasts = seconds
+
+    @property
+    def epoch(self) -> int:
+        return self.grant.epoch
+
+    @property
+    def token(self) -> int:
+        return self.grant.token
+
+    @property
+    def duration(self) -> float:
+        return self.grant.duration
+
+    @property
+    def deadline(self) -> float:
+        return self.grant.deadline
+
+    @property
+    def ends_at(self) -> float | None:
+        """When the sound started at the trigger ends (sync clock), None before it."""
+        return None if self.fired_at is None else self.fired_at + self.lasts
+
+    def fits(self, now: float | None = None) -> bool:
+        """True if a sound of ``seconds`` started ``now`` ends within the lease."""
+        return self.grant.fits(self.seconds, self.clock() if now is None else now)
+
+    def check_at_trigger(
+        self, wall: Clock | None = None, lasts: float | None = None
+    ) -> TriggerTime:
+        """The fit check, at the physical trigger: read the clock once; raise
+        :class:`SlotLost` unless a sound of ``seconds`` started now ends within the lease.
+        Returns that reading (and ``wall()`` read right after, if given): the start to
+        announce. ``lasts``: how long the driver's sound lasts, if shorter than the slot
+        (the release goes out when it has ended). ValueError if ``lasts`` exceeds the
+        slot; RuntimeError on a second trigger in the same turn."""
+        now = self.clock()
+        w = wall() if wall is not None else None
+        if self.fired_at is not None:
+            raise RuntimeError("one trigger per turn: this slot was already used")
+        if lasts is not None and not 0 <= lasts <= self.seconds:
+            raise ValueError(
+                f"a sound of {lasts} s does not fit the {self.seconds} s slot it runs in"
+            )
+        if now + self.seconds > self.grant.deadline:
+            raise SlotLost
+        self.fired_at = now
+        if lasts is not None:
+            self.lasts = lasts
+        return TriggerTime(now, w)
+
+    def fire(
+        self,
+        trigger: Callable[[TriggerTime], T],
+        wall: Clock | None = None,
+        lasts: float | None = None,
+    ) -> T:
+        """:meth:`check_at_trigger`, then ``trigger(reading)`` at once (the driver's trigger
+        function, which starts the sound and announces ``reading`` as its start)."""
+        return trigger(self.check_at_trigger(wall, lasts))
 
 
 def slot_duration(slot_s: float) -> float:
@@ -75,16 +167,43 @@ def slot_duration(slot_s: float) -> float:
     return slot_s + max(0.005, 0.25 * slot_s)
 
 
+class KnownTerms:
+    """The newest term (epoch, leader) a client was granted under, per group.
+
+    A grant of an older term is stale: given back unused. A grant of the same epoch from
+    another leader means promises were lost and an epoch reused: also refused. Either way
+    the next request tells the leader what the client knows, so that it steps down and is
+    re-elected above it (``AcquireRequest.known_epoch``).
+    """
+
+    def __init__(self) -> None:
+        self._terms: dict[str, tuple[int, str]] = {}
+
+    def get(self, group: str) -> tuple[int, str]:
+        return self._terms.get(group, (0, ""))
+
+    def accept(self, group: str, epoch: int, leader: str) -> bool:
+        """True (and remember the term) unless a grant of ``(epoch, leader)`` is stale."""
+        k_epoch, k_leader = self.get(group)
+        if epoch < k_epoch or (epoch == k_epoch and leader != k_leader and k_leader):
+            return False
+        self._terms[group] = (epoch, leader)
+        return True
+
+
 class SyncClient:
     """Ask the leader of a group for slots (any node, hosting or not)."""
 
-    def __init__(self, session: zenoh.Session, keys: Keys, timing: Timing) -> None:
+    def __init__(
+        self, session: zenoh.Session, keys: Keys, timing: Timing, clock: Clock = sync_clock.now
+    ) -> None:
         self.session = session
         self.keys = keys
         self.timing = timing
+        self.clock = clock
         self._lock = threading.Lock()
         self._stats: dict[str, dict[str, dict[str, float]]] = {}
-        self._epochs: dict[str, int] = {}
+        self.known = KnownTerms()
 
     def _stat(self, group: str, holder: str) -> dict[str, float]:
         return self._stats.setdefault(group, {}).setdefault(
@@ -108,11 +227,11 @@ class SyncClient:
                 f"sync {group!r}: slot lease {duration:.4f} s is not in (0, "
                 f"{self.timing.max_slot} s]; shorten the slot or raise max_slot_ms"
             )
-        start = time.monotonic()
+        start = self.clock()
         end = start + timeout
         key = self.keys.sync(group, "acquire")
         while True:
-            asked_at = time.monotonic()
+            asked_at = self.clock()
             left = end - asked_at
             if left <= 0:
                 with self._lock:
@@ -122,7 +241,7 @@ class SyncClient:
             # being declared dead yet would otherwise hold the reply stream open.
             grant = self._ask(group, key, holder, duration, min(left, self.timing.lease), asked_at)
             if grant is not None:
-                wait = time.monotonic() - start
+                wait = self.clock() - start
                 with self._lock:
                     st = self._stat(group, holder)
                     st["acquired"] += 1
@@ -130,16 +249,18 @@ class SyncClient:
                     st["mean_wait_ms"] += (st["last_wait_ms"] - st["mean_wait_ms"]) / st["acquired"]
                     st["max_wait_ms"] = max(st["max_wait_ms"], st["last_wait_ms"])
                 return grant
-            time.sleep(min(RETRY_PAUSE, max(0.0, end - time.monotonic())))
+            time.sleep(min(RETRY_PAUSE, max(0.0, end - self.clock())))
 
     def _ask(
         self, group: str, key: str, holder: str, duration: float, left: float, asked_at: float
     ) -> Grant | None:
         got: Grant | None = None
+        with self._lock:
+            k_epoch, k_leader = self.known.get(group)
         try:
             replies = self.session.get(
                 key,
-                payload=AcquireRequest(holder, duration, left).encode(),
+                payload=AcquireRequest(holder, duration, left, k_epoch, k_leader).encode(),
                 target=zenoh.QueryTarget.ALL,
                 consolidation=zenoh.ConsolidationMode.NONE,
                 timeout=left,
@@ -154,13 +275,11 @@ class SyncClient:
                     continue
                 g = Grant(group, holder, rep.epoch, rep.token, rep.duration, asked_at, rep.leader)
                 with self._lock:
-                    stale = rep.epoch < self._epochs.get(group, 0)
-                    if not stale:
-                        self._epochs[group] = rep.epoch
+                    stale = not self.known.accept(group, rep.epoch, rep.leader)
                     if stale:
                         self._stat(group, holder)["stale"] += 1
-                if stale or got is not None:
-                    self.release(g, used=False)  # an older term's or a second grant
+                if stale:
+                    self.release(g, used=False)  # an older term's, or a reused epoch's
                     continue
                 got = g
                 break
@@ -196,37 +315,54 @@ def run_in_slot(
     group: str,
     holder: str,
     slot_s: float,
-    fn: Callable[[Grant], Any],
+    fn: Callable[[Turn], Any],
     timeout: float,
+    clock: Clock = sync_clock.now,
+    sleep: Callable[[float], None] = time.sleep,
 ) -> tuple[bool, Any, Grant | None]:
-    """One synchronised step: acquire a slot, call ``fn(grant)`` in it if it fits, release it.
+    """One synchronised step: acquire a slot, call ``fn(turn)`` in it, give it back.
 
-    Returns ``(fired, result, grant)``. ``fn`` is called only if, by this process's
-    monotonic clock, a step of ``slot_s`` s started now ends before the lease (counted
-    from before the request was sent) runs out; otherwise the slot is given back unused
-    and ``(False, None, grant)`` returned. ``(False, None, None)``: no slot within
-    ``timeout``. The slot is released even if ``fn`` raises (the exception propagates).
+    Returns ``(fired, result, grant)``; ``(False, None, None)``: no slot within
+    ``timeout``. ``fn`` gets a :class:`Turn` and is expected to hand it to its driver,
+    which calls ``turn.check_at_trigger()`` right at the physical trigger; a
+    :class:`SlotLost` from that check (the sound no longer fits the lease) means the step
+    did not fire: the slot is given back unused and ``(False, None, grant)`` returned. A
+    grant that does not fit even before ``fn`` is called is given back the same way.
 
-    The check happens just before ``fn`` is called, but in CPython another thread can hold
-    the GIL for a switch interval (5 ms) in between: a ``fn`` whose trigger must fall in
-    the lease calls ``grant.require(slot_s)`` at its trigger, which raises :class:`SlotLost`
-    if it no longer fits; that counts as a late grant, as if the first check had failed.
+    The release is sent only after the sound has ended (``turn.ends_at`` on ``clock``),
+    also if ``fn`` raises (the exception propagates). A ``fn`` that never calls the check
+    is protected only by the check before it is called (weaker: a pause inside ``fn``
+    before its trigger is not caught).
     """
     grant = client.acquire(group, holder, slot_duration(slot_s), timeout)
     if grant is None:
         return False, None, None
-    if grant.fits(slot_s):
+    turn = Turn(grant, slot_s, clock)
+    if turn.fits():
         try:
-            result = fn(grant)
+            result = fn(turn)
         except SlotLost:
             pass
         except BaseException:
-            client.release(grant, used=True)
+            _release_after_sound(client, turn, clock, sleep, used=True)
             raise
         else:
-            client.release(grant, used=True)
+            _release_after_sound(client, turn, clock, sleep, used=True)
             return True, result, grant
-    client.release(grant, used=False)
+    _release_after_sound(client, turn, clock, sleep, used=turn.fired_at is not None)
     if hasattr(client, "note_late"):
         client.note_late(grant)
     return False, None, grant
+
+
+def _release_after_sound(
+    client: Any, turn: Turn, clock: Clock, sleep: Callable[[float], None], used: bool
+) -> None:
+    """Give the slot back once the sound started at the trigger (if any) has ended."""
+    ends = turn.ends_at
+    if ends is not None:
+        left = ends - clock()
+        while left > 0:
+            sleep(left)
+            left = ends - clock()
+    client.release(turn.grant, used)

@@ -13,28 +13,38 @@ The safety argument and the timing inequalities are in ``sync/README.md``.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass
+
+from hera.sync.promises import Promises
+
+log = logging.getLogger("hera.sync")
 
 
 @dataclass(frozen=True)
 class Timing:
-    """The timing constants of a group, all in seconds of the monotonic clock.
+    """The timing constants of a group, all in seconds of the sync clock.
 
     - ``lease``: how long a majority confirmation lets a leader grant, counted from
       before it asked for the confirmation (L);
-    - ``max_slot``: the longest slot a leader grants (D_max);
-    - ``margin``: safety margin added to every wait (clock rate differences, latency);
+    - ``max_slot``: the longest slot a leader grants (D);
+    - ``margin``: the margin m added to the new leader's wait and to every slot's expiry;
+    - ``drift``: the largest clock rate error assumed, per clock, against real time (rho);
     - ``renew``: how often a leader asks for a fresh confirmation (L / 6);
     - ``pause``: a gap this long (L / 2) in the leader's own loop makes it demote itself;
     - ``wait``: a new leader grants nothing for this long after its election:
       ``lease + max_slot + margin`` (W);
-    - ``quiet``: a starting host neither votes nor runs for this long (Q = W).
+    - ``quiet``: a starting host neither votes nor runs for this long (Q = W);
+    - ``trigger_pause``: the longest pause p between a driver's trigger-time check and its
+      trigger that the margin tolerates at this drift (``sync/README.md``, condition C):
+      ``2 rho (L + D) / (1 - rho) + (1 + rho) p <= m``.
     """
 
     lease: float = 0.3
     max_slot: float = 0.15
     margin: float = 0.05
+    drift: float = 0.01
 
     def __post_init__(self) -> None:
         if not self.lease > 0 or not self.max_slot > 0 or not self.margin >= 0:
@@ -43,6 +53,14 @@ class Timing:
             raise ValueError(
                 f"max_slot ({self.max_slot} s) must be <= lease / 2 ({self.lease / 2} s) so a "
                 "slot fits in a freshly renewed lease"
+            )
+        if not 0 <= self.drift < 0.5:
+            raise ValueError(f"drift must be in [0, 0.5), got {self.drift!r}")
+        if self.trigger_pause < 0:
+            raise ValueError(
+                f"margin {self.margin} s is too small for a clock drift of {self.drift:.1%} "
+                f"over lease + max_slot = {self.lease + self.max_slot} s: it needs at least "
+                f"{self.drift_allowance:.4f} s"
             )
 
     @property
@@ -61,6 +79,16 @@ class Timing:
     def quiet(self) -> float:
         return self.wait
 
+    @property
+    def drift_allowance(self) -> float:
+        """The part of the margin that clock drift takes: ``2 rho (L + D) / (1 - rho)``."""
+        return 2 * self.drift * (self.lease + self.max_slot) / (1 - self.drift)
+
+    @property
+    def trigger_pause(self) -> float:
+        """The longest tolerated pause between trigger check and trigger (p, seconds)."""
+        return (self.margin - self.drift_allowance) / (1 + self.drift)
+
 
 NOBODY = ""
 
@@ -76,19 +104,26 @@ class Voter:
     3. (stickiness, for liveness only) the candidate is the promised one, or the promised
        leader has not been confirmed for ``timing.lease`` s, or it is not alive.
 
-    Rules 1-2 carry safety; rule 3 only adds refusals.
+    Rule 2 carries safety; with ``promises`` (durable storage) it holds across restarts:
+    a changed promise is saved before the yes is given, and loaded at start. Rule 1 only
+    matters when the storage was lost; rule 3 only adds refusals.
     """
 
-    def __init__(self, me: str, timing: Timing, now: float) -> None:
+    def __init__(
+        self, me: str, timing: Timing, now: float, promises: Promises | None = None
+    ) -> None:
         self.me = me
         self.timing = timing
         self.quiet_until = now + timing.quiet
-        self.epoch = 0
-        self.candidate = NOBODY
+        self.promises = promises
+        self.epoch, self.candidate = promises.load() if promises is not None else (0, NOBODY)
+        self._saved = (self.epoch, self.candidate)
         self.confirmed_at = float("-inf")
+        self.save_failures = 0
 
     def request(self, epoch: int, candidate: str, now: float, alive: Callable[[str], bool]) -> bool:
-        """Answer a vote request; on yes, promise ``(epoch, candidate)`` from now on."""
+        """Answer a vote request; on yes, promise ``(epoch, candidate)`` from now on (saved
+        to ``promises`` first; a failed save answers no)."""
         if now < self.quiet_until:
             # Remember the highest term asked for, so that once quiet is over we never
             # promise below a term that may be live (only adds refusals: safe).
@@ -97,6 +132,14 @@ class Voter:
             return False
         if not self.would(epoch, candidate, now, alive):
             return False
+        if self.promises is not None and (epoch, candidate) != self._saved:
+            try:
+                self.promises.save(epoch, candidate)
+            except OSError as e:
+                self.save_failures += 1
+                log.error("sync voter %s cannot save its promise, answers no: %s", self.me, e)
+                return False
+            self._saved = (epoch, candidate)
         self.epoch, self.candidate, self.confirmed_at = epoch, candidate, now
         return True
 

@@ -3,23 +3,31 @@
 Run one node process with ``python -m hera.sync.harness --node s1 --port 7447 ...``. It
 opens a Zenoh peer session on 127.0.0.1, hosts the sync service for its group, runs one
 worker thread per measure that fires as often as it may, and appends one line per event to
-its log file right away (``os.write`` on an ``O_APPEND`` file, so a SIGKILL loses nothing):
+its log file right away (``os.write`` on an ``O_APPEND`` file, so a SIGKILL loses nothing).
+All times are on :data:`CLOCK`, the clock grants' deadlines are on:
 
-- ``F <start> <end> <deadline> <holder> <epoch> <token>``: a firing; ``start`` is the
-  trigger time and ``end = start + slot`` the end of the ping (a stopped CPU does not
-  prolong the sound), ``deadline`` the end of the grant's lease, all ``time.monotonic()``;
+- ``F <start> <end> <deadline> <holder> <epoch> <token> <checked>``: a firing; ``start``
+  is the clock read at the trigger itself (after any pause between the fit check and the
+  trigger), ``end = start + slot`` the end of the sound (a stopped CPU does not prolong
+  it), ``deadline`` the end of the grant's lease, ``checked`` the clock read by the fit
+  check at the trigger;
 - ``E <observed_end> <holder> <token>``: the firing function returned;
 - ``G <asked> <granted> <holder> <token>``: ``acquire`` was called and returned a grant;
 - ``L <now> <holder> <epoch> <token>``: a grant arrived too late and was given back;
 - ``S <now> <holder> <token>``: the worker is about to SIGSTOP its own process while
   holding a grant (``selfstop`` command);
+- ``H``/``R <now> <holder> <epoch> <token>``: a release is held back / was sent late;
 - ``X <now> <holder>``: the worker of that measure has ended (``remove`` command).
 
 Commands on stdin, one per line: ``add NAME SLOT_MS``, ``remove NAME``, ``selfstop NAME``
 (SIGSTOP this process right after NAME's next grant, before its fit check; that worker then
-holds until ``go NAME``, to be sent after SIGCONT), ``close`` (close the Zenoh session
-without exiting: cut off the bus) and ``quit``. The process writes its
-status (JSON, ``SyncService.status()`` under ``"sync"``) to ``--status`` every 50 ms.
+holds until ``go NAME``, to be sent after SIGCONT), ``stall NAME MS EVERY`` (every
+EVERY-th firing of NAME pauses MS ms in the measure's code, before the driver),
+``stall-trigger NAME MS EVERY`` (the same, inside the driver between its fit check and the
+trigger), ``holdrelease NAME`` (after NAME's next firing, hold its release back) and
+``release NAME N`` (send the held release N times, 2 ms apart, then go on), ``close``
+(close the Zenoh session without exiting: cut off the bus) and ``quit``. The process writes
+its status (JSON, ``SyncService.status()`` under ``"sync"``) to ``--status`` every 50 ms.
 
 The firing function is pluggable: ``--fire module:factory`` where ``factory(ctx)`` gets a
 dict (node, measure, slot, session, keys) and returns a callable run inside each slot.
@@ -35,6 +43,7 @@ import contextlib
 import importlib
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -47,8 +56,11 @@ from pathlib import Path
 from typing import Any
 
 from hera.launcher import free_ports
+from hera.sync import clock as sync_clock
 
 STATUS_EVERY = 0.05
+CLOCK = sync_clock.now
+"""The clock of every time the harness logs (the clock grants' deadlines are on)."""
 
 # ------------------------------------------------------------------------------------------
 # The node process
@@ -63,8 +75,36 @@ class _Log:
         os.write(self.fd, (" ".join(str(f) for f in fields) + "\n").encode())
 
 
+class _Stall:
+    """A stall to inject every ``every``-th firing of a measure (``stall`` commands)."""
+
+    def __init__(self) -> None:
+        self.seconds = 0.0
+        self.every = 0
+        self.count = 0
+
+    def set(self, ms: str, every: str) -> None:
+        self.seconds, self.every, self.count = float(ms) / 1000.0, int(every), 0
+
+    def maybe(self) -> float:
+        """Sleep if this is the firing to stall; return the seconds stalled."""
+        if self.every <= 0:
+            return 0.0
+        self.count += 1
+        if self.count % self.every:
+            return 0.0
+        time.sleep(self.seconds)
+        return self.seconds
+
+
 class _Worker:
-    """One measure firing as often as it may; a SlotClient wrapper for the self-stop hook."""
+    """One measure firing as often as it may; a SlotClient wrapper for the test hooks.
+
+    A firing runs like a synchronised step of a node: the runtime's wrapper, then the
+    measure's own code (where ``stall`` injects a pause), then the driver, which triggers
+    (``stall-trigger`` injects a pause just before the trigger). The ``F`` line records the
+    clock read at the trigger itself, so the audit sees a late trigger as late.
+    """
 
     def __init__(self, name: str, slot: float, node: Any) -> None:
         self.name = name
@@ -74,6 +114,11 @@ class _Worker:
         self.stop = threading.Event()
         self.selfstop = threading.Event()
         self.go = threading.Event()
+        self.stall = _Stall()
+        self.stall_trigger = _Stall()
+        self.hold_release = threading.Event()
+        self.resend = threading.Event()
+        self.resend_times = 0
         self.grant: Any = None
         self.fired = 0
         self.fire = node.make_fire(name, slot)
@@ -81,14 +126,14 @@ class _Worker:
 
     # SlotClient protocol, delegating to the node's client
     def acquire(self, group: str, holder: str, duration: float, timeout: float) -> Any:
-        t0 = time.monotonic()
+        t0 = CLOCK()
         g = self.node.client.acquire(group, holder, duration, timeout)
         self.grant = g
         if g is not None:
-            self.node.log.line("G", t0, time.monotonic(), self.holder, g.token)
+            self.node.log.line("G", t0, CLOCK(), self.holder, g.token)
         if g is not None and self.selfstop.is_set():
             self.selfstop.clear()
-            self.node.log.line("S", time.monotonic(), self.holder, g.token)
+            self.node.log.line("S", CLOCK(), self.holder, g.token)
             os.kill(os.getpid(), signal.SIGSTOP)
             # SIGSTOP lands asynchronously: hold this thread until told to go on (after
             # SIGCONT), so the stop surely falls between the grant and the fit check.
@@ -97,21 +142,39 @@ class _Worker:
         return g
 
     def release(self, grant: Any, used: bool) -> None:
+        if self.hold_release.is_set() and used:
+            # stall before the release (``holdrelease``); ``release N`` then sends it N
+            # times, 2 ms apart (a late, duplicated release)
+            self.hold_release.clear()
+            self.node.log.line("H", CLOCK(), self.holder, grant.epoch, grant.token)
+            self.resend.wait()
+            for _ in range(self.resend_times):
+                self.node.client.release(grant, used)
+                time.sleep(0.002)
+            self.node.log.line("R", CLOCK(), self.holder, grant.epoch, grant.token)
         self.node.client.release(grant, used)
 
     def note_late(self, grant: Any) -> None:
         self.node.client.note_late(grant)
 
-    def _fire(self, g: Any) -> Any:
-        start = time.monotonic()
-        g.require(self.slot, start)  # the trigger-time check (see run_in_slot)
+    def _fire(self, turn: Any) -> Any:
+        """The measure's code, then the driver."""
+        self.stall.maybe()  # the measure's own code
+        return self._drive(turn)
+
+    def _drive(self, turn: Any) -> Any:
+        """The simulated driver: the fit check at the trigger, the trigger, the sound."""
+        checked = turn.check_at_trigger().clock  # raises SlotLost if it no longer fits
+        self.stall_trigger.maybe()  # outside the guarantee beyond Timing.trigger_pause
+        start = CLOCK()  # the trigger
         end = start + self.slot
-        self.node.log.line("F", start, end, g.deadline, self.holder, g.epoch, g.token)
+        g = turn.grant
+        self.node.log.line("F", start, end, g.deadline, self.holder, g.epoch, g.token, checked)
         result = self.fire()
-        left = end - time.monotonic()
+        left = end - CLOCK()
         if left > 0:
             time.sleep(left)
-        self.node.log.line("E", time.monotonic(), self.holder, g.token)
+        self.node.log.line("E", CLOCK(), self.holder, g.token)
         return result
 
     def _run(self) -> None:
@@ -124,8 +187,8 @@ class _Worker:
             if fired:
                 self.fired += 1
             elif grant is not None:
-                self.node.log.line("L", time.monotonic(), self.holder, grant.epoch, grant.token)
-        self.node.log.line("X", time.monotonic(), self.holder)
+                self.node.log.line("L", CLOCK(), self.holder, grant.epoch, grant.token)
+        self.node.log.line("X", CLOCK(), self.holder)
 
 
 def _no_fire(ctx: dict[str, Any]) -> Callable[[], None]:
@@ -134,10 +197,9 @@ def _no_fire(ctx: dict[str, Any]) -> Callable[[], None]:
 
 class _Node:
     def __init__(self, args: argparse.Namespace) -> None:
-        from hera.sync.service import SyncService
-
         from hera.bus import BusConfig, open_session, tcp_endpoint
         from hera.keys import Keys
+        from hera.sync.service import SyncService
 
         self.node = args.node
         self.group = args.group
@@ -154,7 +216,12 @@ class _Node:
         hosts = [h for h in args.hosts.split(",") if h]
         host_groups = {args.group: hosts} if args.node in hosts else {}
         self.service = SyncService(
-            self.session, self.keys, args.node, host_groups, lease_ms=args.lease_ms
+            self.session,
+            self.keys,
+            args.node,
+            host_groups,
+            lease_ms=args.lease_ms,
+            state_dir=args.state_dir or None,
         )
         self.client = self.service.client()
         self.fire_factory = _no_fire
@@ -190,6 +257,15 @@ class _Node:
             self.workers[parts[1]].selfstop.set()
         elif verb == "go" and len(parts) == 2 and parts[1] in self.workers:
             self.workers[parts[1]].go.set()
+        elif verb in ("stall", "stall-trigger") and len(parts) == 4 and parts[1] in self.workers:
+            w = self.workers[parts[1]]
+            (w.stall if verb == "stall" else w.stall_trigger).set(parts[2], parts[3])
+        elif verb == "holdrelease" and len(parts) == 2 and parts[1] in self.workers:
+            self.workers[parts[1]].hold_release.set()
+        elif verb == "release" and len(parts) == 3 and parts[1] in self.workers:
+            w = self.workers[parts[1]]
+            w.resend_times = int(parts[2])
+            w.resend.set()
         elif verb == "close" and not self.closed:
             self.closed = True
             self.session.close()  # cut off the bus; the service's threads live on
@@ -200,7 +276,7 @@ class _Node:
         st = {
             "node": self.node,
             "pid": os.getpid(),
-            "t": time.monotonic(),
+            "t": CLOCK(),
             "closed": self.closed,
             "fired": {w.name: w.fired for w in self.workers.values()},
             "sync": self.service.status(),
@@ -231,6 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--lease-ms", type=int, default=300)
     p.add_argument("--bus-lease-ms", type=int, default=2000)
     p.add_argument("--fire", default="", help="module:factory returning the fire callable")
+    p.add_argument("--state-dir", default="", help="where the voter keeps its promise")
     p.add_argument("--log", required=True)
     p.add_argument("--status", required=True)
     args = p.parse_args(argv)
@@ -269,6 +346,8 @@ def main(argv: list[str] | None = None) -> int:
 
 @dataclass
 class Firing:
+    """One sound: ``start`` (the trigger) to ``end``, under grant ``(epoch, token)``."""
+
     start: float
     end: float
     deadline: float
@@ -276,6 +355,7 @@ class Firing:
     epoch: int
     token: int
     node: str
+    checked: float = float("nan")
 
 
 @dataclass
@@ -287,6 +367,8 @@ class Logs:
     stops: list[tuple[float, str, int]] = field(default_factory=list)
     exits: dict[str, float] = field(default_factory=dict)
     acquires: list[tuple[float, float, str]] = field(default_factory=list)
+    held: list[tuple[float, str, int, int]] = field(default_factory=list)
+    resent: list[tuple[float, str, int, int]] = field(default_factory=list)
     lines: dict[str, list[list[str]]] = field(default_factory=dict)
 
 
@@ -302,12 +384,22 @@ def read_logs(paths: dict[str, Path]) -> Logs:
         for raw in text.splitlines():
             f = raw.split()
             try:
-                if f[0] == "F" and len(f) == 7:
+                if f[0] == "F" and len(f) == 8:
                     out.firings.append(
                         Firing(
-                            float(f[1]), float(f[2]), float(f[3]), f[4], int(f[5]), int(f[6]), node
+                            float(f[1]),
+                            float(f[2]),
+                            float(f[3]),
+                            f[4],
+                            int(f[5]),
+                            int(f[6]),
+                            node,
+                            float(f[7]),
                         )
                     )
+                elif f[0] in ("H", "R") and len(f) == 5:
+                    rec = (float(f[1]), f[2], int(f[3]), int(f[4]))
+                    (out.held if f[0] == "H" else out.resent).append(rec)
                 elif f[0] == "L" and len(f) == 5:
                     out.late.append((float(f[1]), f[2], int(f[3]), int(f[4])))
                 elif f[0] == "S" and len(f) == 4:
@@ -341,8 +433,9 @@ class Check:
 
 
 def check_firings(firings: list[Firing]) -> Check:
-    """Check mutual exclusion: no two firings overlap; in start order the fencing tokens
-    strictly increase (so no stale grant fired after a newer one); each fits its lease."""
+    """Check mutual exclusion on the real trigger times: no two firings overlap; in start
+    order the tokens (audit labels: a sonar cannot check them) strictly increase, so no
+    stale grant fired after a newer one; each sound ends within its lease."""
     fs = sorted(firings, key=lambda x: x.start)
     overlaps, disorder = [], []
     latest: Firing | None = None
@@ -362,7 +455,9 @@ class Cluster:
     """Harness node processes on loopback; a context manager that always cleans up.
 
     ``hosts`` host the service (and fire, one measure each unless ``measures`` says
-    otherwise); ``clients`` only fire. Every process is SIGCONTed then SIGKILLed at exit.
+    otherwise); ``clients`` only fire. Each node keeps its sync state in
+    ``state_dir(node)`` (kept across restarts unless wiped). Every process is SIGCONTed then
+    SIGKILLed at exit.
     """
 
     def __init__(
@@ -399,6 +494,9 @@ class Cluster:
     def status_path(self, node: str) -> Path:
         return self.dir / f"{node}.status.json"
 
+    def state_dir(self, node: str) -> Path:
+        return self.dir / "state" / node
+
     def start(self, node: str | None = None) -> None:
         """Start every node (or one, e.g. to restart it)."""
         for n in [node] if node else self.nodes:
@@ -411,6 +509,7 @@ class Cluster:
                 "--cluster", self.cluster, "--lease-ms", str(self.lease_ms),
                 "--bus-lease-ms", str(self.bus_lease_ms),
                 "--log", str(self.log_path(n)), "--status", str(self.status_path(n)),
+                "--state-dir", str(self.state_dir(n)),
             ]  # fmt: skip
             for name, slot in self.measures.get(n, []):
                 cmd += ["--measure", f"{name}:{slot}"]
@@ -465,6 +564,18 @@ class Cluster:
         os.kill(p.pid, signal.SIGKILL)
         p.wait(timeout=10)
         self.stopped.discard(node)
+
+    def restart_hosts(self, wipe: bool = False) -> None:
+        """Kill every host process at once, then start them all again (a redeploy, or a
+        power blip); ``wipe``: their state directories are lost too."""
+        for n in self.hosts:
+            if self.procs[n].poll() is None:
+                self.kill(n)
+        if wipe:
+            for n in self.hosts:
+                shutil.rmtree(self.state_dir(n), ignore_errors=True)
+        for n in self.hosts:
+            self.start(n)
 
     def stop(self, node: str) -> None:
         os.kill(self.procs[node].pid, signal.SIGSTOP)

@@ -8,7 +8,7 @@ speak the protocol with Zenoh and msgpack alone. Keys, under ``hera/<cluster>/sy
 - ``acquire`` (queryable on every host): an :class:`AcquireRequest`; only the granting
   leader answers, with a :class:`GrantReply`, when the slot is the asker's (long poll);
   the others drop the query without a reply;
-- ``release`` (subscriber on every host): a :class:`Release`;
+- ``release`` (subscriber on every host): a :class:`Release`, sent after the sound ended;
 - ``host/<node>``: liveliness token of each host of the group.
 
 Decoding never trusts its input: anything malformed raises :class:`ProtocolError`.
@@ -102,14 +102,30 @@ class VoteReply:
 
 @dataclass(frozen=True, slots=True)
 class AcquireRequest:
-    """A measure asks for a slot of ``duration`` s; it gives up after ``timeout`` s."""
+    """A measure asks for a slot of ``duration`` s; it gives up after ``timeout`` s.
+
+    ``known_epoch``/``known_leader``: the newest term the asker was granted under (0, ""
+    if none). A leader of a lower epoch, or of the same epoch under another name (its
+    promises were lost), steps down and is re-elected above it. Optional on the wire
+    (``k``, ``kl``).
+    """
 
     holder: str
     duration: float
     timeout: float
+    known_epoch: int = 0
+    known_leader: str = ""
 
     def encode(self) -> bytes:
-        return _pack({"h": self.holder, "d": float(self.duration), "t": float(self.timeout)})
+        return _pack(
+            {
+                "h": self.holder,
+                "d": float(self.duration),
+                "t": float(self.timeout),
+                "k": self.known_epoch,
+                "kl": self.known_leader,
+            }
+        )
 
     @staticmethod
     def decode(payload: bytes) -> AcquireRequest:
@@ -117,7 +133,12 @@ class AcquireRequest:
         if not m["d"] > 0:
             raise ProtocolError(f"acquire: duration must be > 0, got {m['d']!r}")
         _nonneg("acquire", "t", m["t"])
-        return AcquireRequest(m["h"], float(m["d"]), float(m["t"]))
+        k, kl = m.get("k", 0), m.get("kl", "")
+        if isinstance(k, bool) or not isinstance(k, int) or k < 0:
+            raise ProtocolError(f"acquire: field 'k' must be an int >= 0, got {k!r}")
+        if not isinstance(kl, str):
+            raise ProtocolError("acquire: field 'kl' has the wrong type")
+        return AcquireRequest(m["h"], float(m["d"]), float(m["t"]), k, kl)
 
 
 @dataclass(frozen=True, slots=True)

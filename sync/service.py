@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+import os
 import threading
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
@@ -11,9 +13,12 @@ import zenoh
 from hera.keys import Keys, check_chunk
 from hera.measure import MeasureContext, MeasureSpec
 from hera.services import ServiceContext, SlotRunner
+from hera.sync import clock as sync_clock
 from hera.sync.client import SyncClient, run_in_slot
 from hera.sync.election import Timing
 from hera.sync.group import GroupHost
+
+log = logging.getLogger("hera.sync")
 
 DEFAULT_LEASE_MS = 300
 
@@ -51,7 +56,10 @@ class SyncService:
     a list of ``(group, hosts)`` pairs is accepted too, and an empty one for a node that
     hosts nothing. ``lease_ms`` is the leader lease L (how long a majority confirmation
     lets a leader grant); ``max_slot_ms`` the longest slot lease (default L / 2, the most
-    allowed). A new leader grants nothing for L + max_slot + 50 ms after its election.
+    allowed); ``margin_ms`` the margin m. A new leader grants nothing for L + max_slot + m
+    after its election. ``state_dir``: where each hosted group's voter keeps its promise
+    (durable across restarts; without it, promises live in memory and a restart is covered
+    only by the quiet period, outside the guarantee of ``sync/README.md``).
     """
 
     def __init__(
@@ -63,11 +71,13 @@ class SyncService:
         lease_ms: int = DEFAULT_LEASE_MS,
         max_slot_ms: int | None = None,
         margin_ms: int = 50,
+        state_dir: str | os.PathLike[str] | None = None,
     ) -> None:
         check_chunk(node, "node name")
         lease = lease_ms / 1000.0
         max_slot = (max_slot_ms / 1000.0) if max_slot_ms is not None else lease / 2
         self.timing = Timing(lease=lease, max_slot=max_slot, margin=margin_ms / 1000.0)
+        self.state_dir = state_dir
         self.node = node
         self.keys = keys
         self.session = session
@@ -75,8 +85,15 @@ class SyncService:
         for group, hosts in groups.items():
             if node not in hosts:
                 raise ValueError(f"sync group {group!r}: node {node!r} not among hosts {hosts}")
+        if groups and state_dir is None:
+            log.warning(
+                "sync on %s: no state directory, promises kept in memory only: a restart is "
+                "covered by the quiet period, not by the guarantee (sync/README.md)",
+                node,
+            )
         self.hosts: dict[str, GroupHost] = {
-            g: GroupHost(session, keys, g, node, hosts, self.timing) for g, hosts in groups.items()
+            g: GroupHost(session, keys, g, node, hosts, self.timing, state_dir=state_dir)
+            for g, hosts in groups.items()
         }
         self._client = SyncClient(session, keys, self.timing)
         self._lock = threading.Lock()
@@ -109,14 +126,15 @@ class SyncService:
         """What the worker of synchronised measure ``spec`` calls for each step
         (:class:`hera.services.SlotService`): acquire a slot of ``spec.group`` for
         ``spec.slot`` s, run the step in it with ``ctx.grant`` set (the measure announces
-        the grant it runs under) after the trigger-time check, release it."""
+        the turn it runs under; its driver checks the turn right at the trigger), release
+        it once the step has ended."""
         client = self._client
         holder = f"{self.node}/{spec.name}"
 
         def in_slot(step: Callable[[], Any]) -> tuple[bool, Any, Any]:
-            def fire(grant: Any) -> Any:
-                grant.require(spec.slot)  # the trigger-time check (see run_in_slot)
-                ctx.grant = grant
+            def fire(turn: Any) -> Any:
+                # the measure hands the turn to its driver, which checks it at the trigger
+                ctx.grant = turn
                 try:
                     return step()
                 finally:
@@ -134,6 +152,10 @@ class SyncService:
             "lease_ms": round(t.lease * 1e3, 3),
             "max_slot_ms": round(t.max_slot * 1e3, 3),
             "new_leader_wait_ms": round(t.wait * 1e3, 3),
+            "margin_ms": round(t.margin * 1e3, 3),
+            "trigger_pause_ms": round(t.trigger_pause * 1e3, 3),
+            "clock": sync_clock.NAME,
+            "durable_promises": self.state_dir is not None,
             "groups": {g: h.status() for g, h in self.hosts.items()},
             "client": self._client.status(),
         }
@@ -142,7 +164,10 @@ class SyncService:
 def node_service(ctx: ServiceContext) -> SyncService:
     """The ``hera.services`` factory: the sync service of node ``ctx.node``, hosting the
     groups its ``sync_hosts`` name (each with the spec's full host list) with the spec's
-    ``sync_lease_ms``, and the slot client of its synchronised measures."""
+    ``sync_lease_ms``, and the slot client of its synchronised measures; each hosted
+    group's voter persists its promises in the node's state directory."""
     groups = ctx.spec.sync_groups()
     hosts = {g: groups[g] for g in ctx.spec.node(ctx.node).sync_hosts}
-    return SyncService(ctx.session, ctx.keys, ctx.node, hosts, ctx.spec.sync_lease_ms)
+    return SyncService(
+        ctx.session, ctx.keys, ctx.node, hosts, ctx.spec.sync_lease_ms, state_dir=ctx.state_dir
+    )

@@ -4,10 +4,12 @@ Pure logic with an injected clock (the Zenoh plumbing is in :mod:`hera.sync.grou
 
 - A measure (``holder``) waits in a FIFO queue; asking again while queued keeps its place.
   After a slot it must ask again, so it joins the back: round-robin among waiting measures.
-- At most one slot is out. It is freed on a release carrying its token, or when its lease
-  has run out on the leader's clock (``granted_at + duration + expiry_margin``), never
-  earlier. The holder's own lease ends no later than ``granted_at + duration``.
-- Tokens strictly increase, across terms too: ``token = epoch << 32 | n``.
+- At most one slot is out. It is freed on a release from its holder carrying its epoch and
+  token, or when its lease has run out on the leader's clock (``granted_at + duration +
+  expiry_margin``), never earlier. The holder's own lease ends no later than
+  ``granted_at + duration``.
+- Tokens strictly increase, across terms too: ``token = epoch << 32 | n`` (epochs are
+  unique for ever, see ``sync/README.md``). They are audit labels: a sonar cannot check one.
 """
 
 from __future__ import annotations
@@ -22,7 +24,9 @@ TOKEN_BITS = 32
 
 @dataclass
 class Waiting:
-    """A queued request: ``duration`` is the slot asked for, ``ticket`` the reply handle."""
+    """A queued request: ``duration`` is the slot asked for, ``ticket`` the reply handle,
+    ``round_seq`` the number of vote rounds the leader had started when it arrived (a grant
+    needs a round started after it: see :class:`hera.sync.core.GroupCore`)."""
 
     holder: str
     duration: float
@@ -30,6 +34,7 @@ class Waiting:
     give_up_at: float
     ticket: Any = None
     queued_since: float | None = None
+    round_seq: int = 0
 
     def __post_init__(self) -> None:
         if self.queued_since is None:
@@ -95,10 +100,10 @@ class SlotTable:
         self.queue[w.holder] = w
         return old
 
-    def release(self, epoch: int, token: int, used: bool) -> bool:
-        """Free the slot if ``(epoch, token)`` is the one out; True if it was."""
+    def release(self, epoch: int, token: int, holder: str, used: bool) -> bool:
+        """Free the slot if it is out to ``holder`` under ``(epoch, token)``; True if it was."""
         cur = self.current
-        if cur is None or cur.token != token or cur.epoch != epoch:
+        if cur is None or cur.token != token or cur.epoch != epoch or cur.holder != holder:
             return False
         self.current = None
         self.released += 1
@@ -117,18 +122,23 @@ class SlotTable:
         return gone
 
     def grant(
-        self, now: float, may_grant: Callable[[float], bool]
+        self,
+        now: float,
+        may_grant: Callable[[Waiting], bool],
+        usable: Callable[[Waiting], bool] = lambda w: True,
     ) -> tuple[Waiting, Granted] | None:
-        """Give the slot to the head of the queue if it is free and ``may_grant(duration)``.
+        """Give the slot to the first ``usable`` request if the slot is free and
+        ``may_grant(request)``.
 
         Returns the request and its grant; the caller replies to the request's ticket with
-        ``grant_duration(...)``. Strict FIFO: a head that may not be granted yet blocks the
-        others (no overtaking).
+        ``grant_duration(...)``. Requests that are not ``usable`` (too old to be granted,
+        waiting to be replaced by their asker's next attempt) keep their place; otherwise
+        strict FIFO: a head that may not be granted yet blocks the others (no overtaking).
         """
-        if self.current is not None or not self.queue:
+        if self.current is not None:
             return None
-        head = next(iter(self.queue.values()))
-        if not may_grant(head.duration):
+        head = next((w for w in self.queue.values() if usable(w)), None)
+        if head is None or not may_grant(head):
             return None
         del self.queue[head.holder]
         self.issued += 1

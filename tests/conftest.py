@@ -15,11 +15,15 @@ def cluster(tmp_path: Path) -> Iterator[Callable[..., Cluster]]:
     started: list[Cluster] = []
 
     def start(
-        spec_text: str, name: str = "run", duration: float | None = None, connect: bool = True
+        spec_text: str,
+        name: str = "run",
+        duration: float | None = None,
+        connect: bool = True,
+        overwrite: bool = False,
     ) -> Cluster:
         spec = tmp_path / f"{name}.toml"
         spec.write_text(spec_text)
-        c = Cluster(spec, tmp_path / name, cluster_env(tmp_path), duration)
+        c = Cluster(spec, tmp_path / name, cluster_env(tmp_path), duration, overwrite)
         started.append(c)
         if connect:
             c.connect()

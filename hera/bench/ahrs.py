@@ -373,7 +373,7 @@ def cpu_table(seconds: float) -> str:
     lines = [f"{head[0]:<8} {head[1]:>13} {head[2]:>8} {head[3]:>7} {head[4]:>7} {head[5]:>7}"]
     for backend in ("numba", "numpy"):
         base = node_cpu(backend, None, seconds)
-        ours = node_cpu(backend, "attitude", seconds)
+        ours = node_cpu(backend, "attitude_mekf", seconds)
         thesis = node_cpu(backend, "attitude_thesis", seconds)
         lines.append(
             f"{backend:<8} {base:>13.1f} {ours:>8.1f} {ours - base:>7.1f} {thesis:>7.1f} "

@@ -6,7 +6,11 @@ Prints, each measured in this run:
 - how many messages per second one node's store absorbs from a flooding peer;
 - the CPU share of an idle 5-node observer cluster (deploy/observers.toml);
 - how fast a crashed measure runs again, and how fast peers notice a SIGKILLed and a
-  SIGSTOPped node,
+  SIGSTOPped node;
+- the latency cost of security: publish-to-store p50 at 1 kHz with user/password
+  authentication (the default), and with mutual TLS and access control, against no
+  security at all, in
+  alternating rounds of the same run,
 
 next to the targets of issue 2 and the original Hera's published figures (thesis ch. 5).
 """
@@ -27,6 +31,9 @@ from pathlib import Path
 from hera.bus import BusConfig, open_session
 from hera.client import ClusterClient
 from hera.launcher import node_command
+from hera.security.access import OPERATOR
+from hera.security.credentials import cert_hosts, secured
+from hera.spec import load_spec
 from hera.wire import encode
 
 
@@ -91,21 +98,51 @@ def running(spec_text: str | None, spec_path: Path | None = None) -> Iterator[Cl
                 proc.wait()
 
 
-def latency(period: float, seconds: float) -> dict[str, float]:
-    """Transit p50/p99 (ms) of node a's samples into node b's store at 1/period Hz."""
-    with running(PAIR.format(name=f"lat{int(1 / period)}", period=period)) as c:
-        time.sleep(seconds)
-        st = c.query("b", "status")["b"]
-        return st["transit_ms"]["a"]
+SECURITY = {
+    "none": "[security]\nauth = false\naccess_control = false\n",
+    "auth": "",  # the default: user/password from the run's secret
+    "tls": '[security]\ntls = true\ncerts = "{certs}"\n',
+}
+"""The security modes compared by :func:`security_cost` (spec text appended to PAIR)."""
+
+
+def latency(period: float, seconds: float, security: str = "auth") -> dict[str, float]:
+    """Transit p50/p99 (ms) of node a's samples into node b's store at 1/period Hz, with
+    the given :data:`SECURITY` mode."""
+    text = PAIR.format(name=f"lat{int(1 / period)}", period=period)
+    with tempfile.TemporaryDirectory(prefix="hera-bench-certs-") as certs:
+        if security == "tls":
+            (Path(certs) / "spec.toml").write_text(text)
+            spec = load_spec(Path(certs) / "spec.toml")
+            from hera.security.certs import make_certs  # the tls extra
+
+            make_certs(certs, spec.name, cert_hosts(spec))
+        with running(text + SECURITY[security].format(certs=certs)) as c:
+            time.sleep(seconds)
+            st = c.query("b", "status")["b"]
+            return st["transit_ms"]["a"]
+
+
+def security_cost(seconds: float, rounds: int) -> dict[str, dict[str, float]]:
+    """Median over ``rounds`` alternating rounds of the 1 kHz transit p50 and p99 (ms) in
+    each :data:`SECURITY` mode."""
+    runs: dict[str, list[dict[str, float]]] = {mode: [] for mode in SECURITY}
+    for _ in range(rounds):
+        for mode in SECURITY:
+            runs[mode].append(latency(0.001, seconds, mode))
+    return {
+        mode: {q: statistics.median(r[q] for r in rs) for q in ("p50", "p99")}
+        for mode, rs in runs.items()
+    }
 
 
 def absorb(seconds: float) -> float:
     """Samples per second node b's store accepted while a local session floods it."""
     with (
         running(PAIR.format(name="absorb", period=1.0)) as c,
-        open_session(BusConfig(connect=(c.spec.endpoint("b"),))) as s,
+        open_session(secured(c.spec, OPERATOR, BusConfig(connect=(c.spec.endpoint("b"),)))) as s,
     ):
-        pubs = [s.declare_publisher(f"hera/absorb/data/flood{i}/x") for i in range(8)]
+        pubs = [s.declare_publisher(f"hera/absorb/data/flood{i}/a") for i in range(8)]
         time.sleep(0.3)
         before = c.query("b", "status")["b"]["store"]["accepted"]
         t0 = time.monotonic()
@@ -187,6 +224,9 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--seconds", type=float, default=5.0, help="duration of each latency run")
     ap.add_argument("--crashes", type=int, default=5, help="injected measure crashes")
     ap.add_argument("--quick", action="store_true", help="short runs (for smoke tests)")
+    ap.add_argument(
+        "--rounds", type=int, default=3, help="alternating rounds of the security comparison"
+    )
     args = ap.parse_args(argv)
     secs = 1.0 if args.quick else args.seconds
     print("hera bench bus: real node processes, Zenoh peers on 127.0.0.1", flush=True)
@@ -194,6 +234,7 @@ def main(argv: list[str]) -> int:
     lat1k = latency(0.001, secs)
     rate = absorb(1.0 if args.quick else 3.0)
     obs = observers(1.0 if args.quick else 5.0, 2 if args.quick else args.crashes)
+    sec = security_cost(secs, 1 if args.quick else args.rounds)
 
     def fmt(x, unit, digits=2):
         return "n/a" if x is None else f"{x:.{digits}f} {unit}"
@@ -226,6 +267,16 @@ def main(argv: list[str]) -> int:
         ),
         ("SIGSTOPped node noticed", fmt(obs["sigstop_s"], "s", 3), "<= 3 s", "6-10 s (thesis 5.3)"),
     ]
+    base = sec["none"]["p50"]
+    for mode, what in (
+        ("none", "no security"),
+        ("auth", "user/password"),
+        ("tls", "mutual TLS + ACL"),
+    ):
+        p50, p99 = sec[mode]["p50"], sec[mode]["p99"]
+        cost = "" if mode == "none" else f" ({100 * (p50 / base - 1):+.0f} % at p50)"
+        target = "" if mode == "none" else "<= +30 %"
+        rows.append((f"1 kHz p50/p99, {what}", f"{p50:.3f} / {p99:.3f} ms{cost}", target, ""))
     w = max(len(r[0]) for r in rows)
     v = max(len(r[1]) for r in rows)
     print(f"{'figure':<{w}}  {'measured':<{v}}  {'target':<9}  original Hera")

@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from hera.sync.harness import Cluster, check_firings
+from hera.sync.harness import CLOCK, Cluster, check_firings
 
 ORIGINAL_FAILOVER_S = 10.0  # the thesis (ch. 5.3): synchronised measures stop up to ~10 s
 HANG_DETECTION_FACTOR = 0.85  # a hung peer is declared gone after ~0.85 x the link lease
@@ -50,17 +50,17 @@ def run(slot_ms: float, lease_ms: int, bus_lease_ms: int, steady_s: float) -> di
         c.send("s3", f"add m {slot_ms}")
         c.wait_for("all three firing", lambda: {f.holder for f in c.firings()} >= {
             "s1/m", "s2/m", "s3/m"})  # fmt: skip
-        t0 = time.monotonic()
+        t0 = CLOCK()
         n0 = c.count()
         time.sleep(steady_s)
-        t1 = time.monotonic()
+        t1 = CLOCK()
         fs = [f for f in c.firings() if t0 <= f.start <= t1]
         out["slots_per_s"] = (c.count() - n0) / (t1 - t0)
         gaps = [b.start - a.end for a, b in zip(fs, fs[1:], strict=False)]
         out["handover_p50"], out["handover_p99"] = _pct(gaps, 0.5), _pct(gaps, 0.99)
 
         leader, epoch = c.wait_for("a leader", c.leader)
-        t_kill = time.monotonic()
+        t_kill = CLOCK()
         c.kill(leader)
         out["gap_kill"] = _gap_after(c, t_kill, epoch)
 
@@ -71,7 +71,7 @@ def run(slot_ms: float, lease_ms: int, bus_lease_ms: int, steady_s: float) -> di
             lambda: (g := c.group_status(leader)) is not None and g["leader"] is not None,
         )
         leader, epoch = c.wait_for("a new leader", c.leader)
-        t_stop = time.monotonic()
+        t_stop = CLOCK()
         c.stop(leader)
         out["gap_stop"] = _gap_after(c, t_stop, epoch)
         c.cont(leader)

@@ -8,6 +8,13 @@ A fusion model builds one block per sample present this step (thesis listing 4.1
     ekf.predict(dt)
     result = ekf.update(obs, gate=0.999)   # result.accepted, result.rejected, result.nis
 
+Angles and quaternions: a block's ``residual`` (``angle_residual``) and UKF ``mean``
+(``circular_mean``), the filters' ``residual_x`` and the UKF's ``x_mean`` (``make_residual``,
+``make_mean``). Covariances are checked where they enter (``as_covariance``). Post-processing:
+``record(filt)`` keeps every step, ``smooth(history)`` runs the RTS smoother over it,
+``batch_filter`` filters a whole array of measurements; ``update(..., details=True)`` gives
+y, S, K and the log-likelihood.
+
 Backends: with numba installed (``hera-fusion[fast]``) the hot path runs compiled kernels,
 else numpy; ``HERA_ESTIMATION_BACKEND=numpy|numba|auto`` or ``set_backend`` chooses,
 ``active_backend()`` tells, ``warmup()`` compiles/loads the kernels up front.
@@ -19,10 +26,13 @@ from .correction import linearised_update
 from .ekf import ExtendedKalmanFilter
 from .gating import chi2_cdf, chi2_ppf, chi2_sf, gate_threshold
 from .health import HealthMonitor, NisStats
+from .history import StepHistory, batch_filter, record
 from .kalman import KalmanFilter
+from .means import circular_mean, make_mean, make_residual, quaternion_mean
 from .numerics import (
     CovarianceError,
     NonFiniteInputError,
+    as_covariance,
     assert_positive_definite,
     joseph_update,
     numerical_jacobian,
@@ -41,7 +51,8 @@ from .orientation import (
     quat_to_matrix,
     wrap_angle,
 )
-from .results import BlockOutcome, UpdateResult
+from .results import BlockOutcome, UpdateDetails, UpdateResult
+from .smoother import Smoothed, rts_smoother, smooth
 from .ukf import MerweSigmaPoints, UnscentedKalmanFilter
 
 __all__ = [
@@ -59,17 +70,25 @@ __all__ = [
     "NisStats",
     "NonFiniteInputError",
     "Observations",
+    "Smoothed",
+    "StepHistory",
     "UnscentedKalmanFilter",
+    "UpdateDetails",
     "UpdateResult",
     "align_sign",
     "angle_residual",
+    "as_covariance",
     "assert_positive_definite",
+    "batch_filter",
+    "circular_mean",
     "chi2_cdf",
     "chi2_ppf",
     "chi2_sf",
     "gate_threshold",
     "joseph_update",
     "linearised_update",
+    "make_mean",
+    "make_residual",
     "matrix_to_quat",
     "nearest_branch",
     "numerical_jacobian",
@@ -78,6 +97,10 @@ __all__ = [
     "quat_normalize",
     "quat_omega",
     "quat_to_matrix",
+    "quaternion_mean",
+    "record",
+    "rts_smoother",
+    "smooth",
     "symmetrise",
     "wrap_angle",
 ]

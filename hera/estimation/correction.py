@@ -1,17 +1,21 @@
 """The measurement update shared by the linear KF and the EKF (linearised correction).
 
-For the stacked blocks: innovation y = z - h(x) (or the block's residual), S = H P H^T + R,
-NIS per block from the diagonal sub-blocks of S, chi-square gating, then either
+For the stacked blocks: innovation y = z - h(x) (or the block's residual), G = H P,
+S = G H^T + R, factorised by Cholesky S = L L^T (also the positive-definiteness test), NIS
+per block from the diagonal sub-blocks of S, chi-square gating, then either
 
-* the joint update K = P H^T S^-1, x += K y, and the Joseph form
-  P = (I - K H) P (I - K H)^T + K R K^T (seed 000) or the short form P = P - K H P; or
+* the joint update K^T = S^-1 G = L^-T (L^-1 G), x += K y, and the Joseph form
+  P = (I - K H) P (I - K H)^T + K R K^T (seed 000), evaluated as T = P - K G (that is,
+  (I - K H) P) and P = T + (K R - T H^T) K^T (that is, T (I - K H)^T + K R K^T), or the
+  short form P = P - K H P; or
 * sequential scalar updates when R is diagonal (seed 000, "sequential update"), which
   need no matrix inverse and give the same result as the joint update (the innovation of
   each row is taken about the prior linearisation point, so this also holds for the EKF).
 
-Nothing is written to the filter before every input has been checked: a non-finite z, R,
-H, Jacobian or h(x) raises :class:`NonFiniteInputError` naming the block, and a
-non-positive-definite S or P raises :class:`CovarianceError`.
+Nothing is written to the filter before every input has been checked: a block whose
+shapes do not fit the state raises ValueError naming it, a non-finite z, R, H, Jacobian or
+h(x) raises :class:`NonFiniteInputError` naming the block, and a non-positive-definite S
+or P raises :class:`CovarianceError`.
 """
 
 from __future__ import annotations
@@ -22,13 +26,22 @@ from typing import Any
 
 import numpy as np
 
-from .backend import active_kernels
+from . import backend as _bk
 from .gating import gate_threshold
-from .numerics import CovarianceError, NonFiniteInputError, numerical_jacobian
-from .observations import Block, Observations
-from .results import BlockOutcome, UpdateResult, make_outcome, make_result, make_result1
-from .small import inv_small, quad_form_small
-from .stacking import EMPTY1, EMPTY2, SCRATCH, block_layout, grow_scratch, stack_noise
+from .numerics import CovarianceError, NonFiniteInputError, finite, numerical_jacobian
+from .observations import Block, Observations, _bad_variance
+from .results import (
+    BlockOutcome,
+    DetailedResult,
+    UpdateDetails,
+    UpdateResult,
+    gaussian_log_likelihood,
+    make_outcome,
+    make_result,
+)
+from .small import chol_small, lower_inverse, nis_small
+from .stacking import EMPTY1, SCRATCH, block_layout, grow_scratch, stack_noise
+from .state import FilterState, check_dt, process_noise
 
 # Kernel protocol (mirrors kernels_numba, which may not be importable): status and flags.
 ALL_REJECTED = 1
@@ -46,6 +59,8 @@ __all__ = [
     "linearised_update",
     "linearised_update_numpy",
     "outcomes",
+    "check_dt",
+    "process_noise",
 ]
 
 _EYE: dict[int, np.ndarray] = {}
@@ -53,6 +68,10 @@ _isfinite = math.isfinite
 _empty = np.empty
 _ND = np.ndarray
 _INF = math.inf
+_F64 = np.float64
+_new = object.__new__
+_tuple_new = tuple.__new__
+_set_outcomes = UpdateResult.outcomes.__set__  # type: ignore[attr-defined]
 
 
 def eye(n: int) -> np.ndarray:
@@ -76,34 +95,54 @@ def as_blocks(obs: Observations | Sequence[Block] | Block | None) -> Sequence[Bl
     return obs  # type: ignore[return-value]
 
 
+def _vector(v: Any, m: int, label: str, what: str) -> np.ndarray:
+    """A block's h(x) or residual as a float64 vector of m values (ValueError otherwise)."""
+    if type(v) is not _ND or v.ndim != 1 or v.dtype != _F64:
+        v = np.asarray(v, dtype=_F64).reshape(-1)
+    if v.shape[0] != m:
+        raise ValueError(f"block {label!r}: {what} has {v.shape[0]} values, z has {m}")
+    return v
+
+
 def _linearise(b: Block, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(H, h(x)) of one block at x."""
+    """(H, h(x)) of one block at x, shapes checked against z and the state (ValueError
+    naming the block). A numerical Jacobian differences h through the block's residual."""
+    n = x.shape[0]
+    m = b.dim
     if b.H is not None:
-        return b.H, b.H @ x
-    hx = b.h(x)  # type: ignore[misc]
-    if type(hx) is not np.ndarray or hx.ndim != 1:
-        hx = np.asarray(hx, dtype=np.float64).reshape(-1)
+        H = b.H
+        if H.shape[1] != n:
+            raise ValueError(f"block {b.label!r}: H has {H.shape[1]} columns, the state has {n}")
+        return H, H @ x
+    hx = _vector(b.h(x), m, b.label, "h(x)")  # type: ignore[misc]
     if b.jacobian is not None:
         Hj = b.jacobian(x)
-        if type(Hj) is not np.ndarray or Hj.ndim != 2:
-            Hj = np.asarray(Hj, dtype=np.float64).reshape(b.dim, -1)
+        if type(Hj) is not _ND or Hj.ndim != 2 or Hj.dtype != _F64:
+            Hj = np.asarray(Hj, dtype=_F64)
+            if Hj.size == m * n:
+                Hj = Hj.reshape(m, n)
+        what = "its Jacobian"
     else:
-        Hj = numerical_jacobian(b.h, x, b.dim).reshape(b.dim, -1)
-    if hx.shape[0] != b.dim or Hj.shape != (b.dim, x.shape[0]):
-        raise ValueError(
-            f"block {b.label!r}: h(x) has shape {hx.shape} and its Jacobian {Hj.shape}; "
-            f"expected ({b.dim},) and ({b.dim}, {x.shape[0]})"
-        )
+        Hj = numerical_jacobian(b.h, x, m, residual=b.residual)  # type: ignore[arg-type]
+        what = "its numerical Jacobian (h(x) of varying size?)"
+    if Hj.shape != (m, n):
+        raise ValueError(f"block {b.label!r}: {what} has shape {Hj.shape}, expected ({m}, {n})")
     return Hj, hx
 
 
 def _innovation(b: Block, hx: np.ndarray) -> np.ndarray:
     if b.residual is None:
         return b.z - hx
-    y = b.residual(b.z, hx)
-    if type(y) is not np.ndarray or y.ndim != 1:
-        y = np.asarray(y, dtype=np.float64).reshape(-1)
-    return y
+    return _vector(b.residual(b.z, hx), b.dim, b.label, "residual(z, h(x))")
+
+
+def _check_variances(b: Block) -> None:
+    """The block's variances are in (0, inf) (checked by Block; again here because the
+    compiled kernels check them too, so both backends raise the same error)."""
+    if b.var is not None:
+        for i, v in enumerate(b.var.tolist()):
+            if not 0.0 < v < _INF:
+                raise _bad_variance(b.label, v, f"R[{i}]")
 
 
 def _all_finite(a: np.ndarray) -> bool:
@@ -134,52 +173,63 @@ def _stack(
     x: np.ndarray, blocks: Sequence[Block]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None, list]:
     """Stack the blocks: (H, y, var or None, R or None, parts)."""
-    if len(blocks) == 1:
-        b = blocks[0]
-        H, hx = _linearise(b, x)
-        y = _innovation(b, hx)
-        return H, y, b.var, b.R, [(H, hx, y)]
     parts = []
     for b in blocks:
+        _check_variances(b)
         H, hx = _linearise(b, x)
         parts.append((H, hx, _innovation(b, hx)))
+    if len(blocks) == 1:
+        b = blocks[0]
+        H, _, y = parts[0]
+        return H, y, b.var, b.R, parts
     H = np.concatenate([p[0] for p in parts])
     y = np.concatenate([p[2] for p in parts])
-    if all(b.var is not None for b in blocks):
-        return H, y, np.concatenate([b.var for b in blocks]), None, parts
-    m = y.shape[0]
-    R = np.zeros((m, m))
-    o = 0
-    for b in blocks:
-        d = b.dim
-        R[o : o + d, o : o + d] = b.cov()
-        o += d
-    return H, y, None, R, parts
+    var, R = stack_noise(blocks, y.shape[0])
+    return H, y, var, R, parts
 
 
-def _block_nis(
-    blocks: Sequence[Block], S: np.ndarray, y: np.ndarray, Sl: list | None, yl: list | None
-) -> list[float] | None:
-    """NIS of every block from the diagonal sub-blocks of S; None if one is not PD."""
+def _cholesky(S: np.ndarray) -> np.ndarray | None:
+    """Lower Cholesky factor of a symmetric S (lower triangle read), None if not PD."""
+    m = S.shape[0]
+    if m <= 3:
+        L = chol_small(S.tolist())
+        return None if L is None else np.array(L)
+    if not _all_finite(S):
+        return None
+    try:
+        return np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        return None
+
+
+def _lower_solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """L^-1 B for a lower-triangular L (forward substitution, as a small inverse for m <=
+    3)."""
+    if L.shape[0] <= 3:
+        return np.array(lower_inverse(L.tolist())) @ B
+    return np.linalg.solve(L, B)
+
+
+def _chol_solve(L: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """S^-1 B = L^-T (L^-1 B) with S = L L^T."""
+    if L.shape[0] <= 3:
+        Li = np.array(lower_inverse(L.tolist()))
+        return Li.T @ (Li @ B)
+    return np.linalg.solve(L.T, np.linalg.solve(L, B))
+
+
+def _block_nis(blocks: Sequence[Block], S: np.ndarray, y: np.ndarray) -> list[float] | None:
+    """NIS of every block, |L_b^-1 y_b|^2 from the Cholesky factor of its diagonal sub-block
+    of S; None if one is not PD."""
     out = []
     o = 0
     for b in blocks:
         d = b.dim
-        if Sl is not None and d <= 3:
-            sub = [row[o : o + d] for row in Sl[o : o + d]]
-            inv = inv_small(sub)
-            if inv is None:
-                return None
-            out.append(quad_form_small(yl[o : o + d], inv))  # type: ignore[index]
-        else:
-            Sb = S[o : o + d, o : o + d] if Sl is None else np.array(Sl)[o : o + d, o : o + d]
-            yb = y[o : o + d]
-            try:
-                L = np.linalg.cholesky(Sb)
-            except np.linalg.LinAlgError:
-                return None
-            w = np.linalg.solve(L, yb)
-            out.append(float(w @ w))
+        L = _cholesky(S[o : o + d, o : o + d])
+        if L is None:
+            return None
+        w = _lower_solve(L, y[o : o + d])
+        out.append(float(w @ w))
         o += d
     return out
 
@@ -191,15 +241,33 @@ def linearised_update(
     gate: float | None = None,
     joseph: bool = True,
     method: str = "auto",
+    *,
+    details: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, UpdateResult]:
     """One correction step; returns new (x, P) and the result. Pure: x and P are not
-    modified. ``method``: "joint", "sequential" (R diagonal) or "auto" (joint up to 3 rows,
-    sequential above when R is diagonal). Runs the compiled kernel when the numba backend
-    is active (same results to roundoff, same errors), else ``linearised_update_numpy``."""
-    filt = object.__new__(LinearisedFilter)  # no copies: x and P are only read
-    filt.x, filt.P, filt.n, filt.joseph, filt.gate = x, P, x.shape[0], joseph, None
-    result = filt.update(blocks, gate, method=method)
-    return filt.x, filt.P, result
+    modified (P is checked as a covariance first). ``method``: "joint", "sequential"
+    (R diagonal) or "auto" (joint up to 3 rows, sequential above when R is diagonal). Runs
+    the compiled kernel when the numba backend is active (same results to roundoff, same
+    errors), else ``linearised_update_numpy``."""
+    filt = LinearisedFilter(x, P, joseph=joseph)
+    # Unchanged input arrays (already float64, C-contiguous and exactly symmetric) are kept,
+    # so a step that fuses nothing returns the caller's x and P themselves.
+    if _same_array(filt._x, x):
+        filt._x = x
+    if _same_array(filt._P, P):
+        filt._P = P
+    result = filt.update(blocks, gate, method=method, details=details)
+    return filt._x, filt._P, result
+
+
+def _same_array(converted: np.ndarray, given: Any) -> bool:
+    return (
+        type(given) is _ND
+        and given.dtype == _F64
+        and given.flags.c_contiguous
+        and given.shape == converted.shape
+        and bool(np.array_equal(converted, given))
+    )
 
 
 def _kernel_inputs(b: Block, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
@@ -208,8 +276,8 @@ def _kernel_inputs(b: Block, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     one) or a residual function (the innovation is then computed here)."""
     H, hx = _linearise(b, x)
     if b.residual is None:
-        return H, b.z, hx, _MODE_HX
-    return H, _innovation(b, hx), hx, _MODE_GIVEN
+        return H, b.z, hx, b.kflags | _MODE_HX
+    return H, _innovation(b, hx), hx, b.kflags | _MODE_GIVEN
 
 
 def _compiled_stacked(
@@ -232,15 +300,13 @@ def _compiled_stacked(
     z = np.concatenate([p[1] for p in parts])
     m = z.shape[0]
     dims = tuple(b.dim for b in blocks)
-    if H.shape != (m, n) or sum(dims) != m:
-        return None
     flags |= _MODE_GIVEN
     var, R = stack_noise(blocks, m)
     if var is not None:
         flags |= _DIAG
-        R = EMPTY2
+        noise = var
     else:
-        var = EMPTY1
+        noise = R.reshape(-1)  # type: ignore[union-attr]
     if method == "sequential" or (m > 3 and method == "auto" and flags & _DIAG):
         if not flags & _DIAG:
             return None
@@ -251,7 +317,7 @@ def _compiled_stacked(
     nis_arr = np.empty(len(blocks))
     try:
         status = k.lin_update(
-            x, P, H, z, EMPTY1, var, R, ends, thr_arr, flags, x_out, P_out, nis_arr
+            x, P, H, z, EMPTY1, noise, ends, thr_arr, flags, x_out, P_out, nis_arr
         )
     except TypeError:
         return None
@@ -274,6 +340,28 @@ def outcomes(blocks: Sequence[Block], nis: list[float], thr: list[float | None])
     )
 
 
+def _joseph_numpy(
+    P: np.ndarray,
+    H: np.ndarray,
+    Kt: np.ndarray,
+    G: np.ndarray,
+    var: np.ndarray | None,
+    R: np.ndarray | None,
+    joseph: bool,
+) -> np.ndarray:
+    """(I - K H) P (I - K H)^T + K R K^T as T = P - K G, T + (K R - T H^T) K^T (or the
+    short form T), symmetrised; G = H P, Kt = K^T."""
+    K = Kt.T
+    T = P - K @ G
+    if joseph:
+        W = K * var if var is not None else K @ R
+        W -= T @ H.T
+        T += W @ Kt
+    out = T + T.T
+    out *= 0.5
+    return out
+
+
 def linearised_update_numpy(
     x: np.ndarray,
     P: np.ndarray,
@@ -281,133 +369,126 @@ def linearised_update_numpy(
     gate: float | None = None,
     joseph: bool = True,
     method: str = "auto",
+    details: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, UpdateResult]:
     """``linearised_update`` on numpy only (the reference the compiled kernel is tested
-    against)."""
-    if len(blocks) == 1 and method != "sequential":
+    against; it also computes the details)."""
+    if len(blocks) == 1 and method != "sequential" and not details:
         b = blocks[0]
-        if b.dim <= 3 and b.var is not None:
+        if b.dim <= 3:
             fast = _fast_single(x, P, b, gate, joseph)
             if fast is not None:
                 return fast
     H, y, var, R, parts = _stack(x, blocks)
     m = y.shape[0]
-    PHt = P @ H.T
-    S = H @ PHt
+    G = H @ P
+    S = G @ H.T
     if var is not None:
         S.flat[:: m + 1] += var
     else:
         S += R
+    S = 0.5 * (S + S.T)
     # Finite S and y imply finite z, R, H (P is PD, so inf * P_jj never cancels to finite).
-    Sinv = None
-    if m <= 3:
-        Sl = S.tolist()
-        yl = y.tolist()
-        Sinv = inv_small(Sl)
-        ok = Sinv is not None and all(map(_isfinite, yl))
-    else:
-        Sl = yl = None
-        ok = _all_finite(S) and _all_finite(y)
-    if not ok:
+    if not (finite(S) and finite(y)):
         diagnose_nonfinite(blocks, parts, P)
-        if m > 3 and not _all_finite(S):  # pragma: no cover - defensive
-            raise CovarianceError("S")
-    if len(blocks) == 1 and Sinv is not None:
-        nis = [quad_form_small(yl, Sinv)]  # type: ignore[arg-type]
-    else:
-        nis = _block_nis(blocks, S, y, Sl, yl)
-    if nis is None or (m <= 3 and Sinv is None):
+        raise CovarianceError("S")  # pragma: no cover - defensive
+    nis = _block_nis(blocks, S, y)
+    if nis is None:
         labels = ", ".join(repr(b.label) for b in blocks)
         raise CovarianceError(f"innovation covariance S of blocks {labels}")
     if gate is not None:
         thr = [gate_threshold(gate, b.dim) for b in blocks]
         acc = [v <= t for v, t in zip(nis, thr, strict=True)]
+        res_outs = [
+            BlockOutcome(b.label, b.dim, v, a, t)
+            for b, v, a, t in zip(blocks, nis, acc, thr, strict=True)
+        ]
         if not all(acc):
             kept = [b for b, a in zip(blocks, acc, strict=True) if a]
-            res = UpdateResult(
-                [
-                    BlockOutcome(b.label, b.dim, v, a, t)
-                    for b, v, a, t in zip(blocks, nis, acc, thr, strict=True)
-                ]
-            )
             if not kept:
-                return x, P, res
-            x2, P2, _ = linearised_update_numpy(x, P, kept, None, joseph, method)
-            return x2, P2, res
-        rows = zip(blocks, nis, thr, strict=True)
-        outs = [BlockOutcome(b.label, b.dim, v, True, t) for b, v, t in rows]
-        result = UpdateResult(outs)
+                return x, P, UpdateResult(res_outs)
+            x2, P2, r2 = linearised_update_numpy(x, P, kept, None, joseph, method, details)
+            if details:
+                return x2, P2, DetailedResult(res_outs, r2.details)
+            return x2, P2, UpdateResult(res_outs)
+        outs = res_outs
     else:
-        pairs = zip(blocks, nis, strict=True)
-        result = UpdateResult([BlockOutcome(b.label, b.dim, v, True) for b, v in pairs])
+        outs = [BlockOutcome(b.label, b.dim, v, True) for b, v in zip(blocks, nis, strict=True)]
 
     sequential = method == "sequential" or (method == "auto" and m > 3 and var is not None)
+    L = None
     if sequential:
         if var is None:
             raise ValueError("sequential updates need a diagonal R (variances) in every block")
         x_new, P_new = _sequential(x, P, H, y, var, joseph)
     else:
-        if Sinv is not None:
-            K = PHt @ np.array(Sinv)
-        else:
-            try:
-                K = np.linalg.solve(S, PHt.T).T
-            except np.linalg.LinAlgError:
-                raise CovarianceError("innovation covariance S", "singular") from None
-        x_new = x + K @ y
-        if joseph:
-            A = eye(x.shape[0]) - K @ H
-            KRKt = (K * var) @ K.T if var is not None else K @ R @ K.T
-            P_new = A @ P @ A.T + KRKt
-        else:
-            P_new = P - K @ PHt.T
-        P_new = 0.5 * (P_new + P_new.T)
-    if not min(P_new.diagonal().tolist()) > 0.0:
+        L = _joint_factor(S, blocks)
+        Kt = _chol_solve(L, G)
+        x_new = x + y @ Kt
+        P_new = _joseph_numpy(P, H, Kt, G, var, R, joseph)
+    if not min(P_new.diagonal().tolist()) > 0.0 or not finite(P_new):
         raise CovarianceError("P after update", "non-positive diagonal")
-    return x_new, P_new, result
+    if not details:
+        return x_new, P_new, UpdateResult(outs)
+    if L is None:  # sequential: the details are those of the equal joint update
+        L = _joint_factor(S, blocks)
+        Kt = _chol_solve(L, G)
+    w = _lower_solve(L, y)
+    log_det = 2.0 * float(np.log(np.diagonal(L)).sum())
+    det = UpdateDetails(
+        tuple(b.label for b in blocks),
+        y,
+        S,
+        Kt.T.copy(),
+        H,
+        gaussian_log_likelihood(float(w @ w), log_det, m),
+    )
+    return x_new, P_new, DetailedResult(outs, det)
+
+
+def _joint_factor(S: np.ndarray, blocks: Sequence[Block]) -> np.ndarray:
+    """The Cholesky factor of the stacked S, or CovarianceError naming the blocks."""
+    L = _cholesky(S)
+    if L is None:
+        labels = ", ".join(repr(b.label) for b in blocks)
+        raise CovarianceError(f"innovation covariance S of blocks {labels}")
+    return L
 
 
 def _fast_single(
     x: np.ndarray, P: np.ndarray, b: Block, gate: float | None, joseph: bool
 ) -> tuple[np.ndarray, np.ndarray, UpdateResult] | None:
-    """Joint update of one block of 1-3 rows with diagonal R, with as few numpy calls as
-    possible (S is inverted in closed form on Python floats). Returns None to fall back to
-    the general path (non-finite input, S not PD, gated out) which then diagnoses.
-
-    Covariance: the Joseph form written out, P - K G - G^T K^T + K S K^T with G = H P
-    (algebraically equal to (I - K H) P (I - K H)^T + K R K^T for any gain K), evaluated as
-    P + (E + E^T) with E = K (S K^T / 2 - G), which is exactly symmetric; or the short
-    form P - K G, symmetrised.
-    """
+    """Joint update of one block of 1-3 rows with as few numpy calls as possible: S is
+    factorised and its factor inverted in closed form on Python floats (``small``), the
+    covariance is the Joseph form as in ``_joseph_numpy``. Returns None to fall back to
+    the general path (non-finite input, S not PD, gated out) which then diagnoses."""
+    _check_variances(b)
     H, hx = _linearise(b, x)
     y = _innovation(b, hx)
-    dot = np.dot
-    G = dot(H, P)
-    Sl = dot(G, H.T).tolist()
-    vl = b.var.tolist()  # type: ignore[union-attr]
-    for i, v in enumerate(vl):
-        Sl[i][i] += v
-    Sinv = inv_small(Sl)
+    G = H @ P
+    Sl = (G @ H.T).tolist()
+    if b.var is not None:
+        for i, v in enumerate(b.var.tolist()):
+            Sl[i][i] += v
+    else:
+        Rl = b.R.tolist()  # type: ignore[union-attr]
+        Sl = [[a + r for a, r in zip(sr, rr, strict=True)] for sr, rr in zip(Sl, Rl, strict=True)]
+    L = chol_small(Sl)
     yl = y.tolist()
-    if Sinv is None or not all(map(_isfinite, yl)):
+    if L is None or not all(map(_isfinite, yl)):
         return None
-    nis = quad_form_small(yl, Sinv)
+    Li = lower_inverse(L)
+    nis = nis_small(Li, yl)
     thr = None
     if gate is not None:
         thr = gate_threshold(gate, b.dim)
         if not nis <= thr:
             return None
-    Kt = dot(np.array(Sinv), G)  # K^T, m x n
-    x_new = x + dot(y, Kt)
-    if joseph:
-        Sh = np.array(Sl)
-        Sh *= 0.5
-        E = dot(Kt.T, dot(Sh, Kt) - G)
-        P_new = P + (E + E.T)
-    else:
-        P_new = P - dot(Kt.T, G)
-        P_new = 0.5 * (P_new + P_new.T)
-    if not min(P_new.diagonal().tolist()) > 0.0:
+    Lia = np.array(Li)
+    Kt = Lia.T @ (Lia @ G)  # K^T = S^-1 G
+    x_new = x + y @ Kt
+    P_new = _joseph_numpy(P, H, Kt, G, b.var, b.R, joseph)
+    if not min(P_new.diagonal().tolist()) > 0.0 or not finite(P_new):
         raise CovarianceError("P after update", "non-positive diagonal")
     return x_new, P_new, UpdateResult([BlockOutcome(b.label, b.dim, nis, True, thr)])
 
@@ -416,64 +497,69 @@ def _sequential(
     x: np.ndarray, P: np.ndarray, H: np.ndarray, y: np.ndarray, var: np.ndarray, joseph: bool
 ) -> tuple[np.ndarray, np.ndarray]:
     """Scalar updates row by row (R diagonal); no inverse. Row i's innovation is taken about
-    the prior point: y_i - H_i (x_i - x_prior), which makes the result equal the joint one."""
-    n = x.shape[0]
-    ident = eye(n)
+    the prior point: y_i - H_i (x_i - x_prior), which makes the result equal the joint one.
+    Each row's covariance is the Joseph form (I - k h^T) P (I - k h^T)^T + v k k^T as
+    T = P - k (h^T P), T - (T h) k^T + v k k^T (or the short form T), symmetrised."""
     xc = x
     Pc = P
     yl = y.tolist()
     vl = var.tolist()
     for i in range(H.shape[0]):
         hi = H[i]
-        c = Pc @ hi
-        s = float(hi @ c) + vl[i]
-        if not s > 0.0:
+        c = hi @ Pc
+        s = float(c @ hi) + vl[i]
+        if not 0.0 < s < _INF:
             raise CovarianceError("innovation variance", f"row {i}: {s!r}")
         k = c / s
         yi = yl[i] - float(hi @ (xc - x)) if i else yl[i]
         xc = xc + k * yi
+        T = Pc - np.outer(k, c)
         if joseph:
-            A = ident - np.outer(k, hi)
-            Pc = A @ Pc @ A.T + vl[i] * np.outer(k, k)
-        else:
-            Pc = Pc - np.outer(k, c)
-    return xc, 0.5 * (Pc + Pc.T)
+            T += np.outer(vl[i] * k - T @ hi, k)
+        Pc = 0.5 * (T + T.T)
+    return xc, Pc
 
 
 def _as_matrix(a: Any, n: int, what: str) -> np.ndarray:
-    m = np.array(a, dtype=np.float64)
+    """A finite (n, n) float64 matrix (a scalar means a * I) - for F and B, not covariances."""
+    try:
+        m = np.array(a, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be a number or an ({n}, {n}) matrix, got {a!r}") from None
     if m.ndim == 0:
         m = m * np.eye(n)
     if m.shape != (n, n):
         raise ValueError(f"{what} has shape {m.shape}, expected ({n}, {n})")
     if not _all_finite(m):
-        raise ValueError(f"{what} contains NaN or inf")
+        raise NonFiniteInputError(what, "the matrix", "model")
     return m
 
 
-class LinearisedFilter:
+class LinearisedFilter(FilterState):
     """State (x, P) and the shared linearised correction of the KF and the EKF.
+
+    ``x`` and ``P`` are checked properties, ``x_prior``/``P_prior`` the state after the
+    last predict, ``x_post``/``P_post`` after the last update (see ``state.FilterState``).
 
     ``joseph``: use the Joseph-form covariance update (default) or the short form
     P = P - K H P. ``gate``: default gate probability for ``update`` (None: no gating).
     """
 
+    residual_x = None  # the state's residual function (EKF); None: plain subtraction
+
     def __init__(self, x0: Any, P0: Any, *, joseph: bool = True, gate: float | None = None) -> None:
-        self.x = np.array(x0, dtype=np.float64).reshape(-1)
-        self.n = self.x.shape[0]
-        self.P = _as_matrix(P0, self.n, "P0")
-        if not _all_finite(self.x):
-            raise ValueError("x0 contains NaN or inf")
+        super().__init__(x0, P0)
         self.joseph = joseph
         self.gate = gate
 
-    def reset(self, x: Any, P: Any) -> None:
-        """Re-initialise the state (e.g. from a health monitor's reset hook)."""
-        x = np.array(x, dtype=np.float64).reshape(-1)
-        if x.shape != (self.n,) or not _all_finite(x):
-            raise ValueError(f"reset: x must be {self.n} finite values")
-        self.P = _as_matrix(P, self.n, "P")
-        self.x = x
+    @property
+    def joseph(self) -> bool:
+        """Joseph-form covariance update (True) or the short form P - K H P."""
+        return self._jflag != 0
+
+    @joseph.setter
+    def joseph(self, on: bool) -> None:
+        self._jflag = _JOSEPH if on else 0
 
     def update(
         self,
@@ -481,91 +567,86 @@ class LinearisedFilter:
         gate: float | None = ...,  # type: ignore[assignment]
         *,
         method: str = "auto",
+        details: bool = False,
     ) -> UpdateResult:
         """Fuse the present observation blocks (thesis listing 4.1). No blocks: no-op.
 
         ``gate``: chi-square probability per block (e.g. 0.999) or None; defaults to the
-        filter's ``gate``. Returns which blocks were accepted/rejected with their NIS. On any
-        exception the state is unchanged.
+        filter's ``gate``. Returns which blocks were accepted/rejected with their NIS;
+        ``details=True`` adds y, S, K, H and the log-likelihood of the fused rows
+        (``result.details``; computed on the numpy path). On any exception the state is
+        unchanged.
         """
         blocks = obs.blocks if type(obs) is Observations else as_blocks(obs)
         if gate is ...:
             gate = self.gate
-        k = active_kernels()
+        k = _bk._active
         out = None
-        b = blocks[0] if len(blocks) == 1 else None
-        if (
-            k is not None
-            and b is not None
-            and method != "sequential"
-            and (b.dim <= 3 or b.var is None or method != "auto")  # else sequential rows
-        ):
-            # One block on the allocation-free kernel lin_update1: the hot path of a fusion
-            # model (one sensor sample per step), written out here because at n <= 9 each
-            # Python call layer costs as much as the arithmetic. The kernel checks every
-            # shape and numba's dispatch every dtype and rank, so only what is not an array
-            # is converted; a failed kernel falls through to the numpy path, which diagnoses.
+        if k is not None and len(blocks) == 1 and method != "sequential" and not details:
+            b = blocks[0]
             m = b.dim
-            var = b.var
-            x = self.x
-            h = b.h
-            jac = b.jacobian
-            if b.residual is not None or (h is not None and jac is None):
-                H, z, hx, flags = _kernel_inputs(b, x)
-            elif h is None:  # linear: the kernel computes y = z - H x
-                H, z, hx, flags = b.H, b.z, EMPTY1, 0
-            else:  # as _linearise, the shape checks left to the kernel
-                hx = h(x)
-                if type(hx) is not _ND:
-                    hx = np.asarray(hx, dtype=np.float64).reshape(-1)
-                H = jac(x)
-                if type(H) is not _ND:
-                    H = np.asarray(H, dtype=np.float64).reshape(m, -1)
-                z, flags = b.z, _MODE_HX
-            if var is not None:
-                flags |= _DIAG
-                R = EMPTY2
-            else:
-                var, R = EMPTY1, b.R
-            if self.joseph:
-                flags |= _JOSEPH
-            thr = _INF if gate is None else gate_threshold(gate, m)
-            n = x.shape[0]
-            x_out = _empty(n)
-            P_out = _empty((n, n))
-            P = self.P
-            try:
-                nis = k.lin_update1(x, P, H, z, hx, var, R, thr, flags, SCRATCH[0], x_out, P_out)
-                if nis == _WS_SMALL:
-                    ws = grow_scratch(4 * m + 4 * n * m + 2 * m * m + n * n)
-                    nis = k.lin_update1(x, P, H, z, hx, var, R, thr, flags, ws, x_out, P_out)
-            except TypeError:  # e.g. an integer Jacobian or h(x): numpy converts it
-                nis = -1.0
-            if nis >= 0.0:  # else a status code: the numpy path below decides
-                if nis > thr:  # gated out: the state stays as it is
-                    return make_result1(b.label, m, nis, False, thr)
-                self.x = x_out
-                self.P = P_out
-                return make_result1(b.label, m, nis, True, None if gate is None else thr)
-        elif not blocks:
+            if m <= 3 or b.var is None or method != "auto":  # else sequential rows
+                # One block on the allocation-free kernel lin_update1: the hot path of a
+                # fusion model (one sensor sample per step), written out here because at
+                # n <= 9 each Python call layer costs as much as the arithmetic. The kernel
+                # checks every shape and numba's dispatch every dtype and rank, so only
+                # what is not an array is converted; a failed kernel falls through to the
+                # numpy path, which diagnoses.
+                x = self._x
+                h = b.h
+                if h is None and b.residual is None:  # linear: the kernel computes z - H x
+                    H, z, hx, flags = b.H, b.z, EMPTY1, b.kflags
+                elif b.residual is not None or b.jacobian is None:
+                    H, z, hx, flags = _kernel_inputs(b, x)
+                else:  # as _linearise, the shape checks left to the kernel
+                    hx = h(x)
+                    if type(hx) is not _ND:
+                        hx = np.asarray(hx, dtype=np.float64).reshape(-1)
+                    H = b.jacobian(x)
+                    if type(H) is not _ND:
+                        H = np.asarray(H, dtype=np.float64).reshape(m, -1)
+                    z, flags = b.z, b.kflags | _MODE_HX
+                thr = _INF if gate is None else gate_threshold(gate, m)
+                n = self.n
+                x_out = _empty(n)
+                P_out = _empty((n, n))
+                try:
+                    nis = k.lin_update1(
+                        x, self._P, H, z, hx, b.noise, thr, flags | self._jflag, SCRATCH[0],
+                        x_out, P_out,
+                    )  # fmt: skip
+                    if nis == _WS_SMALL:
+                        ws = grow_scratch(2 * m + 2 * m * m + 3 * n * m)
+                        nis = k.lin_update1(
+                            x, self._P, H, z, hx, b.noise, thr, flags | self._jflag, ws,
+                            x_out, P_out,
+                        )  # fmt: skip
+                except TypeError:  # e.g. an integer Jacobian or h(x): numpy converts it
+                    nis = -1.0
+                if nis >= 0.0:  # else a status code: the numpy path below decides
+                    # The result built in place (tuple.__new__: no call layers).
+                    res = _new(UpdateResult)
+                    if nis > thr:  # gated out: the state stays as it is
+                        _set_outcomes(
+                            res, [_tuple_new(BlockOutcome, (b.label, m, nis, False, thr))]
+                        )
+                        return res
+                    t = None if gate is None else thr
+                    _set_outcomes(res, [_tuple_new(BlockOutcome, (b.label, m, nis, True, t))])
+                    self._x = self.x_post = x_out
+                    self._P = self.P_post = P_out
+                    if self.history is not None:
+                        self.history._updated(self, res)
+                    return res
+        if not blocks:
             return make_result([])
-        elif k is not None:
-            out = _compiled_stacked(k, self.x, self.P, blocks, gate, self.joseph, method)
+        if k is not None and not details and out is None:
+            out = _compiled_stacked(k, self._x, self._P, blocks, gate, self.joseph, method)
         if out is None:
-            out = linearised_update_numpy(self.x, self.P, blocks, gate, self.joseph, method)
-        self.x, self.P, res = out
+            out = linearised_update_numpy(
+                self._x, self._P, blocks, gate, self.joseph, method, details
+            )
+        x_new, P_new, res = out
+        if x_new is not self._x:
+            self._commit_update(x_new, P_new, res)
         return res
-
-    def _commit_predict(self, x: np.ndarray, P: np.ndarray, what: str) -> None:
-        """Store a predicted state after a finiteness check (state unchanged on error)."""
-        if x.shape != (self.n,) or P.shape != (self.n, self.n):
-            raise ValueError(f"{what}: predicted shapes {x.shape}, {P.shape}")
-        if not (_isfinite(float(x.sum())) and _isfinite(float(P.sum()))) and not (
-            _all_finite(x) and _all_finite(P)
-        ):
-            raise NonFiniteInputError("predict", what, "step")
-        self.x = x
-        self.P = P
-
-    def __repr__(self) -> str:
-        return f"{type(self).__name__}(n={self.n}, x={self.x!r})"

@@ -6,18 +6,22 @@ numpy's per-call overhead. Each kernel:
 
 * reads its inputs and writes *only* into output arrays it is given (never into x or P),
   so a failed step leaves the filter untouched;
-* checks finiteness and positive definiteness itself and returns a status code instead of
-  raising: ``OK``, ``ALL_REJECTED`` (every block gated out; outputs not written) or a
-  negative code. On a negative code the caller re-runs the step on the numpy path, which
-  raises the precise, labelled error (``NonFiniteInputError`` / ``CovarianceError``) or,
-  in borderline roundoff cases, produces the result; the two backends therefore share one
-  error behaviour.
+* checks finiteness, variances and positive definiteness itself and returns a status code
+  instead of raising: ``OK``, ``ALL_REJECTED`` (every block gated out; outputs not written)
+  or a negative code. On a negative code the caller re-runs the step on the numpy path,
+  which raises the precise, labelled error (``NonFiniteInputError`` / ``CovarianceError`` /
+  ``ValueError``) or, in borderline roundoff cases, produces the result; the two backends
+  therefore share one error behaviour.
 
 Equations are the same as on the numpy path (``correction``, ``kalman``, ``ekf``, ``ukf``)
 and are cited there: predict P = F P F^T + Q (seed 003 eq. 5), the joint update with the
-Joseph form P = (I - K H) P (I - K H)^T + K R K^T (seed 000), sequential scalar updates,
-the unscented transform (seed 003 eqs. 9-17). Innovation covariances are factorised by
-Cholesky (S = L L^T), which also is the positive-definiteness test; NIS = |L^-1 y|^2.
+Joseph form P = (I - K H) P (I - K H)^T + K R K^T (seed 000), evaluated as
+T = (I - K H) P = P - K (H P), then T (I - K H)^T + K R K^T = T + (K R - T H^T) K^T (the
+textbook product, associated so that it costs O(n^2 m); never the expanded
+P - K H P - P H^T K^T + K S K^T, which cancels catastrophically when R << H P H^T),
+sequential scalar updates, the unscented transform (seed 003 eqs. 9-17). Innovation
+covariances are factorised by Cholesky (S = L L^T), which also is the positive-definiteness
+test; NIS = |L^-1 y|^2 and K^T = L^-T L^-1 (H P).
 
 The functions below are compiled lazily by ``backend`` with the signatures in ``SIGNATURES``
 (any layout, read-only inputs accepted) and ``cache=True``.
@@ -26,6 +30,9 @@ Hot-path kernels (``lin_update1``, the predicts) allocate nothing: their interme
 in a scratch array ``ws`` the caller passes (``stacking.SCRATCH``), and they check every
 array shape themselves (returning ``BAD_SHAPE``), so no argument can make them read or
 write out of bounds; numba's dispatch checks dtypes and ranks.
+
+A block's measurement noise reaches the kernels as one vector ``noise``: the m variances
+when the ``DIAG`` flag is set, else the (m, m) covariance row by row.
 """
 
 from __future__ import annotations
@@ -43,7 +50,17 @@ NOT_PD = -2
 BAD_P = -3
 WS_SMALL = -4  # the scratch array ws is too short: the caller grows it and retries
 BAD_SHAPE = -5  # inconsistent array shapes: the numpy path raises the precise error
+BAD_R = -6  # a variance not in (0, inf): the numpy path raises the precise error
+STEP_PREDICT = -7  # a step kernel's predict part failed (non-finite): nothing is valid
 
+MODE_LINEAR = 0  # flags bits 0-1: innovation y = z - H x
+MODE_HX = 1  # y = z - hx
+MODE_GIVEN = 2  # y = z (the caller passed the innovation)
+DIAG = 4  # noise = the variances, else the (m, m) covariance row by row
+JOSEPH = 8  # Joseph form, else P - K H P
+SEQUENTIAL = 16  # scalar updates row by row (needs DIAG)
+
+_INF = math.inf
 _isfinite = math.isfinite
 _jit = numba.njit(
     cache=True, error_model="numpy"
@@ -118,8 +135,8 @@ def _nis_and_keep(S, y, ends, thr, L, nis_out, keep):
 
 @_jit
 def _finish(P_out):
-    """Symmetrise P_out in place; False if a diagonal entry is not > 0 or a value is not
-    finite."""
+    """Symmetrise P_out in place, (P + P^T) / 2 as on the numpy path; False if a diagonal
+    entry is not > 0 or a value is not finite."""
     n = P_out.shape[0]
     for i in range(n):
         for j in range(i + 1, n):
@@ -128,7 +145,15 @@ def _finish(P_out):
                 return False
             P_out[i, j] = v
             P_out[j, i] = v
-        if not (P_out[i, i] > 0.0) or not _isfinite(P_out[i, i]):
+        if not (0.0 < P_out[i, i] < _INF):
+            return False
+    return True
+
+
+@_jit
+def _variances_ok(noise, m):
+    for i in range(m):  # noqa: SIM110 - a generator is not compiled as tightly by numba
+        if not (0.0 < noise[i] < _INF):
             return False
     return True
 
@@ -138,119 +163,129 @@ def _square(A, n):
     return A.shape[0] == n and A.shape[1] == n
 
 
-@_jit
-def _predict_shapes(P, F, Q, x_out, P_out, n):
-    """True when P, F, Q, P_out are (n, n) and x_out is (n,)."""
-    return (
-        _square(P, n) and _square(F, n) and _square(Q, n) and _square(P_out, n)
-    ) and x_out.shape[0] == n
-
-
-@_jit
-def _cov_predict(P, F, Q, ws, P_out):
-    """P_out = sym(F P F^T) + Q, with F P kept in ws[:n * n]; False if not finite."""
+def _predict_cov(P, F, Q, ws, P_out, bad):
+    """P_out = F P F^T + Q (upper triangle, mirrored: exactly symmetric), F P kept in
+    ws[:n * n]; returns ``bad`` plus P_out * 0 (NaN iff an entry is not finite). Both
+    products as dot products accumulated in registers (faster here than row updates in
+    memory); inlined into each predict kernel, a call passing arrays costs more than the
+    arithmetic at n <= 9."""
     n = P.shape[0]
     for i in range(n):
+        o = i * n
         for j in range(n):
             t = 0.0
             for k in range(n):
                 t += F[i, k] * P[k, j]
-            ws[i * n + j] = t
+            ws[o + j] = t
     for i in range(n):
+        o = i * n
         for j in range(i, n):
-            v = 0.0
+            v = Q[i, j]
             for k in range(n):
-                v += ws[i * n + k] * F[j, k]
-            # F P F^T is symmetric: compute the upper triangle and mirror it (exactly
-            # symmetric, as the numpy path's (A + A^T) / 2), then add Q.
-            P_out[i, j] = v + Q[i, j]
-            P_out[j, i] = v + Q[j, i]
-            if not _isfinite(P_out[i, j]) or not _isfinite(P_out[j, i]):
-                return False
-    return True
+                v += ws[o + k] * F[j, k]
+            bad += v * 0.0
+            P_out[i, j] = v
+            P_out[j, i] = v
+    return bad
+
+
+_predict_cov = numba.njit(cache=True, error_model="numpy", inline="always")(_predict_cov)
 
 
 def kf_predict(x, P, F, Q, ws, x_out, P_out):
-    """x_out = F x, P_out = sym(F P F^T) + Q (seed 003 eq. 5); ws: scratch of >= n * n."""
+    """x_out = F x, P_out = F P F^T + Q (seed 003 eq. 5); ws: scratch of >= n * n."""
     n = x.shape[0]
-    if not _predict_shapes(P, F, Q, x_out, P_out, n):
+    if not (
+        (P.shape[0] == n)
+        & (P.shape[1] == n)
+        & (F.shape[0] == n)
+        & (F.shape[1] == n)
+        & (Q.shape[0] == n)
+        & (Q.shape[1] == n)
+        & (P_out.shape[0] == n)
+        & (P_out.shape[1] == n)
+        & (x_out.shape[0] == n)
+    ):
         return BAD_SHAPE
     if ws.shape[0] < n * n:
         return WS_SMALL
+    bad = 0.0
     for i in range(n):
         t = 0.0
         for k in range(n):
             t += F[i, k] * x[k]
-        if not _isfinite(t):
-            return NONFINITE
+        bad += t * 0.0
         x_out[i] = t
-    if not _cov_predict(P, F, Q, ws, P_out):
+    if _predict_cov(P, F, Q, ws, P_out, bad) != 0.0:
         return NONFINITE
     return OK
 
 
 def kf_predict_u(x, P, F, Q, B, u, ws, x_out, P_out):
-    """x_out = F x + B u, P_out = sym(F P F^T) + Q (seed 003 eq. 5); ws as kf_predict."""
+    """x_out = F x + B u, P_out = F P F^T + Q (seed 003 eq. 5); ws as kf_predict."""
     n = x.shape[0]
-    if not _predict_shapes(P, F, Q, x_out, P_out, n) or B.shape[0] != n or B.shape[1] != u.shape[0]:
+    if not (
+        (P.shape[0] == n)
+        & (P.shape[1] == n)
+        & (F.shape[0] == n)
+        & (F.shape[1] == n)
+        & (Q.shape[0] == n)
+        & (Q.shape[1] == n)
+        & (P_out.shape[0] == n)
+        & (P_out.shape[1] == n)
+        & (x_out.shape[0] == n)
+        & (B.shape[0] == n)
+        & (B.shape[1] == u.shape[0])
+    ):
         return BAD_SHAPE
     if ws.shape[0] < n * n:
         return WS_SMALL
+    bad = 0.0
     for i in range(n):
         t = 0.0
         for k in range(n):
             t += F[i, k] * x[k]
         for k in range(u.shape[0]):
             t += B[i, k] * u[k]
-        if not _isfinite(t):
-            return NONFINITE
+        bad += t * 0.0
         x_out[i] = t
-    if not _cov_predict(P, F, Q, ws, P_out):
+    if _predict_cov(P, F, Q, ws, P_out, bad) != 0.0:
         return NONFINITE
     return OK
 
 
 def ekf_predict(xn, P, F, Q, ws, P_out):
-    """P_out = sym(F P F^T) + Q with the process Jacobian F; checks that xn = f(x) is
-    finite (seed 003 eq. 7); ws as kf_predict."""
+    """P_out = F P F^T + Q with the process Jacobian F; checks that xn = f(x) is finite
+    (seed 003 eq. 7); ws as kf_predict."""
     n = xn.shape[0]
-    if not _predict_shapes(P, F, Q, xn, P_out, n):
+    if not (
+        (P.shape[0] == n)
+        & (P.shape[1] == n)
+        & (F.shape[0] == n)
+        & (F.shape[1] == n)
+        & (Q.shape[0] == n)
+        & (Q.shape[1] == n)
+        & (P_out.shape[0] == n)
+        & (P_out.shape[1] == n)
+    ):
         return BAD_SHAPE
     if ws.shape[0] < n * n:
         return WS_SMALL
+    bad = 0.0
     for i in range(n):
-        if not _isfinite(xn[i]):
-            return NONFINITE
-    if not _cov_predict(P, F, Q, ws, P_out):
+        bad += xn[i] * 0.0
+    if _predict_cov(P, F, Q, ws, P_out, bad) != 0.0:
         return NONFINITE
     return OK
 
 
-MODE_LINEAR = 0  # flags bits 0-1: innovation y = z - H x
-MODE_HX = 1  # y = z - hx
-MODE_GIVEN = 2  # y = z (the caller passed the innovation)
-DIAG = 4  # R = diag(var), else the full block-diagonal R
-JOSEPH = 8  # Joseph form, else P - K H P
-SEQUENTIAL = 16  # scalar updates row by row (needs DIAG)
-
-
-def lin_update(x, P, H, z, hx, var, R, ends, thr, flags, x_out, P_out, nis_out):
-    """Linearised correction of the stacked blocks (see ``correction.linearised_update``).
-
-    ``flags``: innovation mode | DIAG | JOSEPH | SEQUENTIAL (constants above). ``ends``:
-    cumulative row count after each block; ``thr``: each block's NIS gate (inf: none).
-    Writes x_out, P_out and nis_out (per block); returns a status code.
-    """
-    return _lin_update(x, P, H, z, hx, var, R, ends, thr, flags, x_out, P_out, nis_out)
-
-
-@_jit
 def _update_row(x, P, H, z, hx, r, thr, flags, ws, x_out, P_out):
-    """``lin_update1`` for a block of one row (m = 1), shapes already checked: S is the
-    scalar s = h P h^T + r, so K = P h^T / s needs no factorisation, and the Joseph form is
-    written out as for m <= 3 (P + (E + E^T) with E = k (s k^T / 2 - g), g = h P).
-    ws: c = P h^T (n), k (n), d = s k / 2 - g (n). Returns the NIS or a status code."""
+    """``lin_update1`` for one row (m = 1), shapes checked: S is the scalar
+    s = h P h^T + r, so L = sqrt(s) and K = (h P)^T / s; the same Joseph form (T = P - k g,
+    w = k r - T h, P_out = T + w k^T). ws: g = h P (n), k (n), w (n)."""
     n = x.shape[0]
+    if not r > 0.0:
+        return float(BAD_R)
     mode = flags & 3
     if mode == 0:
         t = 0.0
@@ -261,130 +296,117 @@ def _update_row(x, P, H, z, hx, r, thr, flags, ws, x_out, P_out):
         y = z[0] - hx[0]
     else:
         y = z[0]
-    if not _isfinite(y):
-        return float(NONFINITE)
-    s = 0.0
-    for i in range(n):
+    s = r
+    for j in range(n):  # g = h P, s = g h^T + r
         t = 0.0
         for k in range(n):
-            t += P[i, k] * H[0, k]
-        ws[i] = t
-        s += H[0, i] * t
-    s += r
-    if not _isfinite(s):
+            t += H[0, k] * P[k, j]
+        ws[j] = t
+        s += t * H[0, j]
+    if (y * 0.0 + s * 0.0) != 0.0:
         return float(NONFINITE)
     if not s > 0.0:
         return float(NOT_PD)
-    nis = y * y / s
+    w = y / math.sqrt(s)
+    nis = w * w
     if not nis <= thr:
         return nis
     for i in range(n):
         kv = ws[i] / s
         ws[n + i] = kv
         x_out[i] = x[i] + kv * y
+    for i in range(n):  # T = P - k g
+        kv = ws[n + i]
+        for j in range(n):
+            P_out[i, j] = P[i, j] - kv * ws[j]
     if flags & JOSEPH:
-        for j in range(n):  # d = s k / 2 - h P
-            t = 0.0
-            for k in range(n):
-                t += H[0, k] * P[k, j]
-            ws[2 * n + j] = 0.5 * s * ws[n + j] - t
-        for i in range(n):
-            ki = ws[n + i]
-            di = ws[2 * n + i]
-            for j in range(i, n):
-                e = ki * ws[2 * n + j] + ws[n + j] * di
-                P_out[i, j] = P[i, j] + e
-                P_out[j, i] = P[j, i] + e
-    else:
-        for i in range(n):
-            ki = ws[n + i]
+        for i in range(n):  # w = k r - T h^T
+            t = ws[n + i] * r
+            for q in range(n):
+                t -= P_out[i, q] * H[0, q]
+            ws[2 * n + i] = t
+        for i in range(n):  # P_out = T + w k^T
+            wv = ws[2 * n + i]
             for j in range(n):
-                P_out[i, j] = P[i, j] - ki * ws[j]
-    if not _finish(P_out):
+                P_out[i, j] += wv * ws[n + j]
+    bad = 0.0
+    for i in range(n):  # symmetrise, (P + P^T) / 2 as on the numpy path
+        bad += x_out[i] * 0.0
+        for j in range(i + 1, n):
+            v = 0.5 * (P_out[i, j] + P_out[j, i])
+            bad += v * 0.0
+            P_out[i, j] = v
+            P_out[j, i] = v
+        if not 0.0 < P_out[i, i] < _INF:
+            return float(BAD_P)
+    if bad != 0.0:
         return float(BAD_P)
     return nis
 
 
-def lin_update1(x, P, H, z, hx, var, R, thr, flags, ws, x_out, P_out):
-    """``lin_update`` for a single block (joint update, no ``SEQUENTIAL`` flag) with NIS
-    gate ``thr``, allocating nothing: every intermediate lives in ``ws`` (at least
-    4 m + 4 n m + 2 m^2 + n^2 values; the same arithmetic, in the same order, as
-    ``_lin_update`` on one block, except that a single row takes ``_update_row``).
+_update_row = numba.njit(cache=True, error_model="numpy", inline="always")(_update_row)
 
-    Returns the NIS (>= 0): the block was fused and x_out, P_out written iff NIS <= thr.
-    A negative value is a status code (NONFINITE, NOT_PD, BAD_P, BAD_SHAPE, WS_SMALL) as a
-    float. Every shape is checked here, so the caller need not (dtypes and ranks are
-    checked by numba's dispatch against the signature).
-    """
+
+def _update_block(x, P, H, z, hx, noise, thr, flags, ws, x_out, P_out):
+    """The algebra of ``lin_update1`` (shapes and ws already checked): one row on
+    ``_update_row``, several through the Cholesky factor of S. Inlined into the kernels
+    that call it."""
     mode = flags & 3
     diag = (flags & DIAG) != 0
     n = x.shape[0]
     m = H.shape[0]
-    if (
-        H.shape[1] != n
-        or z.shape[0] != m
-        or (mode == 1 and hx.shape[0] != m)
-        or (var.shape[0] != m if diag else (R.shape[0] != m or R.shape[1] != m))
-        or not _square(P, n)
-        or not _square(P_out, n)
-        or x_out.shape[0] != n
-    ):
-        return float(BAD_SHAPE)
-    if ws.shape[0] < 4 * m + 4 * n * m + 2 * m * m + n * n:
-        return float(WS_SMALL)
-    if m == 1:
-        return _update_row(
-            x, P, H, z, hx, var[0] if diag else R[0, 0], thr, flags, ws, x_out, P_out
-        )
-    # Scratch layout, row-major: y (m), PHt (n, m), S (m, m), L (m, m), w (m), K^T (m, n),
-    # b (m), G = H P (m, n), T (n, n), W (n, m).
-    o_ph = m
-    o_s = o_ph + n * m
+    o_w = m
+    o_s = 2 * m
     o_l = o_s + m * m
-    o_w = o_l + m * m
-    o_kt = o_w + m
-    o_b = o_kt + m * n
-    o_g = o_b + m
-    o_t = o_g + m * n
-    o_wk = o_t + n * n
-    for i in range(m):
+    o_g = o_l + m * m
+    o_k = o_g + m * n
+    o_v = o_k + m * n
+    if m == 1:
+        return _update_row(x, P, H, z, hx, noise[0], thr, flags, ws, x_out, P_out)
+    bad = 0.0  # stays 0.0 while every value it collects is finite
+    if diag:
+        for r in range(m):
+            if not noise[r] > 0.0:
+                return float(BAD_R)
+    for r in range(m):
         if mode == 0:
             t = 0.0
             for k in range(n):
-                t += H[i, k] * x[k]
-            v = z[i] - t
+                t += H[r, k] * x[k]
+            v = z[r] - t
         elif mode == 1:
-            v = z[i] - hx[i]
+            v = z[r] - hx[r]
         else:
-            v = z[i]
-        if not _isfinite(v):
-            return float(NONFINITE)
-        ws[i] = v
-    for i in range(n):
-        for j in range(m):
+            v = z[r]
+        bad += v * 0.0
+        ws[r] = v
+    for r in range(m):  # G = H P
+        g = o_g + r * n
+        for j in range(n):
             t = 0.0
             for k in range(n):
-                t += P[i, k] * H[j, k]
-            ws[o_ph + i * m + j] = t
-    for i in range(m):
-        for j in range(m):
+                t += H[r, k] * P[k, j]
+            ws[g + j] = t
+    for r in range(m):  # S = G H^T + R
+        g = o_g + r * n
+        for c in range(m):
             t = 0.0
-            for k in range(n):
-                t += H[i, k] * ws[o_ph + k * m + j]
+            for j in range(n):
+                t += ws[g + j] * H[c, j]
             if diag:
-                if i == j:
-                    t += var[i]
+                if r == c:
+                    t += noise[r]
             else:
-                t += R[i, j]
-            if not _isfinite(t):
-                return float(NONFINITE)
-            ws[o_s + i * m + j] = t
-    # Cholesky S = L L^T (lower triangle of S read), the positive-definiteness test.
-    for j in range(m):
+                t += noise[r * m + c]
+            bad += t * 0.0
+            ws[o_s + r * m + c] = t
+    if bad != 0.0:
+        return float(NONFINITE)
+    for j in range(m):  # Cholesky S = L L^T (lower triangle of S read)
         s = ws[o_s + j * m + j]
         for p in range(j):
             s -= ws[o_l + j * m + p] * ws[o_l + j * m + p]
-        if not (s > 0.0) or not _isfinite(s):
+        if not s > 0.0:
             return float(NOT_PD)
         d = math.sqrt(s)
         ws[o_l + j * m + j] = d
@@ -398,106 +420,226 @@ def lin_update1(x, P, H, z, hx, var, R, thr, flags, ws, x_out, P_out):
         t = ws[i]
         for p in range(i):
             t -= ws[o_l + i * m + p] * ws[o_w + p]
-        t = t / ws[o_l + i * m + i]
+        t /= ws[o_l + i * m + i]
         ws[o_w + i] = t
         nis += t * t
     if not nis <= thr:
         return nis
-    for j in range(n):  # K^T = S^-1 (P H^T)^T, column by column
-        for r in range(m):
-            ws[o_b + r] = ws[o_ph + j * m + r]
-        for i in range(m):
-            t = ws[o_b + i]
+    for i in range(m):  # K^T = L^-1 G (forward substitution on the rows of G) ...
+        ki = o_k + i * n
+        for j in range(n):
+            t = ws[o_g + i * n + j]
             for p in range(i):
-                t -= ws[o_l + i * m + p] * ws[o_b + p]
-            ws[o_b + i] = t / ws[o_l + i * m + i]
-        for i in range(m - 1, -1, -1):
-            t = ws[o_b + i]
+                t -= ws[o_l + i * m + p] * ws[o_k + p * n + j]
+            ws[ki + j] = t / ws[o_l + i * m + i]
+    for i in range(m - 1, -1, -1):  # ... then L^-T (backward substitution)
+        ki = o_k + i * n
+        for j in range(n):
+            t = ws[ki + j]
             for p in range(i + 1, m):
-                t -= ws[o_l + p * m + i] * ws[o_b + p]
-            ws[o_b + i] = t / ws[o_l + i * m + i]
-        for r in range(m):
-            ws[o_kt + r * n + j] = ws[o_b + r]
+                t -= ws[o_l + p * m + i] * ws[o_k + p * n + j]
+            ws[ki + j] = t / ws[o_l + i * m + i]
     for i in range(n):
         t = x[i]
         for r in range(m):
-            t += ws[o_kt + r * n + i] * ws[r]
+            t += ws[o_k + r * n + i] * ws[r]
         x_out[i] = t
-    sym = True  # P exactly symmetric (as the filter keeps it): then H P = (P H^T)^T
-    for i in range(n):
-        for j in range(i + 1, n):
-            if P[i, j] != P[j, i]:
-                sym = False
+    for i in range(n):  # T = (I - K H) P = P - K G, into P_out (row by row)
+        for j in range(n):
+            P_out[i, j] = P[i, j]
+        for r in range(m):
+            kv = ws[o_k + r * n + i]
+            g = o_g + r * n
+            for j in range(n):
+                P_out[i, j] -= kv * ws[g + j]
     if flags & JOSEPH:
-        for r in range(m):  # G = H P
-            for j in range(n):
-                if sym:
-                    t = ws[o_ph + j * m + r]
-                else:
-                    t = 0.0
-                    for q in range(n):
-                        t += H[r, q] * P[q, j]
-                ws[o_g + r * n + j] = t
-    if flags & JOSEPH and diag and m <= 3:
-        # The Joseph form written out, as the numpy path does for this case (one block of
-        # 1-3 rows, diagonal R): P - K G - G^T K^T + K S K^T = P + (E + E^T) with
-        # E = K (S K^T / 2 - G), exactly symmetric, in O(n^2 m).
-        for r in range(m):  # G <- S K^T / 2 - G, in place
-            for j in range(n):
-                t = 0.0
-                for c in range(m):
-                    t += ws[o_s + r * m + c] * ws[o_kt + c * n + j]
-                ws[o_g + r * n + j] = 0.5 * t - ws[o_g + r * n + j]
-        for i in range(n):  # E into P_out
-            for j in range(n):
-                t = 0.0
-                for r in range(m):
-                    t += ws[o_kt + r * n + i] * ws[o_g + r * n + j]
-                P_out[i, j] = t
-        for i in range(n):
-            for j in range(i, n):
-                e = P_out[i, j] + P_out[j, i]
-                P_out[i, j] = P[i, j] + e
-                P_out[j, i] = P[j, i] + e
-    elif flags & JOSEPH:
-        # As _lin_update: T = P - K (H P), W = K R - T H^T, P_out = T + W K^T.
-        for i in range(n):
-            for j in range(n):
-                t = P[i, j]
-                for r in range(m):
-                    t -= ws[o_kt + r * n + i] * ws[o_g + r * n + j]
-                ws[o_t + i * n + j] = t
-        for i in range(n):
+        for i in range(n):  # W = K R - T H^T
             for c in range(m):
                 if diag:
-                    t = ws[o_kt + c * n + i] * var[c]
+                    t = ws[o_k + c * n + i] * noise[c]
                 else:
                     t = 0.0
                     for r in range(m):
-                        t += ws[o_kt + r * n + i] * R[r, c]
+                        t += ws[o_k + r * n + i] * noise[r * m + c]
                 for q in range(n):
-                    t -= ws[o_t + i * n + q] * H[c, q]
-                ws[o_wk + i * m + c] = t
-        for i in range(n):
-            for j in range(n):
-                t = ws[o_t + i * n + j]
-                for c in range(m):
-                    t += ws[o_wk + i * m + c] * ws[o_kt + c * n + j]
-                P_out[i, j] = t
-    else:
-        for i in range(n):
-            for j in range(n):
-                t = P[i, j]
-                for r in range(m):
-                    t -= ws[o_kt + r * n + i] * ws[o_ph + j * m + r]
-                P_out[i, j] = t
-    if not _finish(P_out):
+                    t -= P_out[i, q] * H[c, q]
+                ws[o_v + i * m + c] = t
+        for i in range(n):  # P_out = T (I - K H)^T + K R K^T = T + W K^T (row by row)
+            for c in range(m):
+                wv = ws[o_v + i * m + c]
+                kc = o_k + c * n
+                for j in range(n):
+                    P_out[i, j] += wv * ws[kc + j]
+    for i in range(n):  # symmetrise, (P + P^T) / 2 as on the numpy path
+        bad += x_out[i] * 0.0
+        for j in range(i + 1, n):
+            v = 0.5 * (P_out[i, j] + P_out[j, i])
+            bad += v * 0.0
+            P_out[i, j] = v
+            P_out[j, i] = v
+        if not 0.0 < P_out[i, i] < _INF:
+            return float(BAD_P)
+    if bad != 0.0:
         return float(BAD_P)
     return nis
 
 
+_update_block = numba.njit(cache=True, error_model="numpy", inline="always")(_update_block)
+
+
+def _update_ws(n, m):
+    """Scratch values ``lin_update1`` needs: y, w (m each), S, L (m^2 each), G, K^T, W."""
+    return 2 * m + 2 * m * m + 3 * n * m
+
+
+_update_ws = numba.njit(cache=True, inline="always")(_update_ws)
+
+
+def lin_update1(x, P, H, z, hx, noise, thr, flags, ws, x_out, P_out):
+    """Linearised correction by one block of m rows (joint update, no ``SEQUENTIAL``
+    flag) with NIS gate ``thr``, allocating nothing: every intermediate lives in ``ws``
+    (at least 2 m + 2 m^2 + 3 n m values).
+
+    Steps: y (by the innovation mode), G = H P, S = G H^T + R, S = L L^T (Cholesky),
+    NIS = |L^-1 y|^2 and the gate, K^T = L^-T L^-1 G, x_out = x + K y, then the Joseph form
+    T = P - K G, P_out = T + (K R - T H^T) K^T (or the short form P_out = T), symmetrised.
+
+    Returns the NIS (>= 0): the block was fused and x_out, P_out written iff NIS <= thr.
+    A negative value is a status code (NONFINITE, NOT_PD, BAD_P, BAD_R, BAD_SHAPE,
+    WS_SMALL) as a float. Every shape is checked here, so the caller need not (dtypes and
+    ranks are checked by numba's dispatch against the signature).
+
+    Written as one loop nest without helper calls (each call passing arrays costs
+    reference counting) and with finiteness tested by accumulating v * 0 (NaN iff some v
+    is NaN or inf) instead of a test per value: at n <= 9 both cost more than the algebra.
+    """
+    mode = flags & 3
+    diag = (flags & DIAG) != 0
+    n = x.shape[0]
+    m = H.shape[0]
+    if not (
+        (m > 0)
+        & (H.shape[1] == n)
+        & (z.shape[0] == m)
+        & ((mode != 1) | (hx.shape[0] == m))
+        & (noise.shape[0] == (m if diag else m * m))
+        & (P.shape[0] == n)
+        & (P.shape[1] == n)
+        & (P_out.shape[0] == n)
+        & (P_out.shape[1] == n)
+        & (x_out.shape[0] == n)
+    ):
+        return float(BAD_SHAPE)
+    # Scratch layout, row-major: y (m), w (m), S (m, m), L (m, m), G = H P (m, n),
+    # K^T (m, n), W = K R - T H^T (n, m).
+    if ws.shape[0] < _update_ws(n, m):
+        return float(WS_SMALL)
+    return _update_block(x, P, H, z, hx, noise, thr, flags, ws, x_out, P_out)
+
+
+def _step_shapes(P, F, Q, H, z, hx, noise, flags, P_prior, x_out, P_out, n):
+    """True when the arrays of a step kernel fit a state of n and a block of H's rows."""
+    m = H.shape[0]
+    diag = (flags & DIAG) != 0
+    return (
+        (m > 0)
+        & (P.shape[0] == n)
+        & (P.shape[1] == n)
+        & (F.shape[0] == n)
+        & (F.shape[1] == n)
+        & (Q.shape[0] == n)
+        & (Q.shape[1] == n)
+        & (H.shape[1] == n)
+        & (z.shape[0] == m)
+        & (((flags & 3) != 1) | (hx.shape[0] == m))
+        & (noise.shape[0] == (m if diag else m * m))
+        & (P_prior.shape[0] == n)
+        & (P_prior.shape[1] == n)
+        & (P_out.shape[0] == n)
+        & (P_out.shape[1] == n)
+        & (x_out.shape[0] == n)
+    )
+
+
+_step_shapes = numba.njit(cache=True, inline="always")(_step_shapes)
+
+
+def ekf_step(xn, P, F, Q, H, z, hx, noise, thr, flags, ws, P_prior, x_out, P_out):
+    """``ekf_predict`` then ``lin_update1`` in one call (``Filter.step``): P_prior = F P F^T
+    + Q with xn = f(x) checked finite, then the block (H, hx evaluated at xn by the caller)
+    fused at (xn, P_prior). Returns the NIS (>= 0; fused iff NIS <= thr) or a status as a
+    float: STEP_PREDICT when the predict part failed (P_prior not valid), any other
+    negative code when the update part did (P_prior valid: the predict stands)."""
+    n = xn.shape[0]
+    m = H.shape[0]
+    if not _step_shapes(P, F, Q, H, z, hx, noise, flags, P_prior, x_out, P_out, n):
+        return float(BAD_SHAPE)
+    if ws.shape[0] < max(n * n, _update_ws(n, m)):
+        return float(WS_SMALL)
+    bad = 0.0
+    for i in range(n):
+        bad += xn[i] * 0.0
+    if _predict_cov(P, F, Q, ws, P_prior, bad) != 0.0:
+        return float(STEP_PREDICT)
+    return _update_block(xn, P_prior, H, z, hx, noise, thr, flags, ws, x_out, P_out)
+
+
+def kf_step(x, P, F, Q, H, z, noise, thr, flags, ws, x_prior, P_prior, x_out, P_out):
+    """``kf_predict`` then ``lin_update1`` of a linear block (y = z - H x_prior) in one
+    call; returns as ``ekf_step`` (x_prior and P_prior valid unless STEP_PREDICT)."""
+    n = x.shape[0]
+    m = H.shape[0]
+    if not (
+        _step_shapes(P, F, Q, H, z, z, noise, flags, P_prior, x_out, P_out, n)
+        & (x_prior.shape[0] == n)
+    ):
+        return float(BAD_SHAPE)
+    if ws.shape[0] < max(n * n, _update_ws(n, m)):
+        return float(WS_SMALL)
+    bad = 0.0
+    for i in range(n):
+        t = 0.0
+        for k in range(n):
+            t += F[i, k] * x[k]
+        bad += t * 0.0
+        x_prior[i] = t
+    if _predict_cov(P, F, Q, ws, P_prior, bad) != 0.0:
+        return float(STEP_PREDICT)
+    return _update_block(x_prior, P_prior, H, z, z, noise, thr, flags & ~3, ws, x_out, P_out)
+
+
+def lin_update(x, P, H, z, hx, noise, ends, thr, flags, x_out, P_out, nis_out):
+    """Linearised correction of the stacked blocks (see ``correction.linearised_update``).
+
+    ``flags``: innovation mode | DIAG | JOSEPH | SEQUENTIAL (constants above). ``ends``:
+    cumulative row count after each block; ``thr``: each block's NIS gate (inf: none).
+    Writes x_out, P_out and nis_out (per block); returns a status code.
+    """
+    n = x.shape[0]
+    m = H.shape[0]
+    diag = (flags & DIAG) != 0
+    if (
+        m == 0
+        or H.shape[1] != n
+        or z.shape[0] != m
+        or ((flags & 3) == 1 and hx.shape[0] != m)
+        or noise.shape[0] != (m if diag else m * m)
+        or not _square(P, n)
+        or not _square(P_out, n)
+        or x_out.shape[0] != n
+        or ends.shape[0] != thr.shape[0]
+        or ends.shape[0] != nis_out.shape[0]
+        or ends.shape[0] == 0
+        or ends[ends.shape[0] - 1] != m
+    ):
+        return BAD_SHAPE
+    if diag and not _variances_ok(noise, m):
+        return BAD_R
+    return _lin_update(x, P, H, z, hx, noise, ends, thr, flags, x_out, P_out, nis_out)
+
+
 @_jit
-def _lin_update(x, P, H, z, hx, var, R, ends, thr, flags, x_out, P_out, nis_out):
+def _lin_update(x, P, H, z, hx, noise, ends, thr, flags, x_out, P_out, nis_out):
     mode = flags & 3
     diag = (flags & DIAG) != 0
     joseph = (flags & JOSEPH) != 0
@@ -518,31 +660,27 @@ def _lin_update(x, P, H, z, hx, var, R, ends, thr, flags, x_out, P_out, nis_out)
         if not _isfinite(v):
             return NONFINITE
         y[i] = v
-    PHt = np.empty((n, m))
-    for i in range(n):
-        for j in range(m):
-            t = 0.0
-            for k in range(n):
-                t += P[i, k] * H[j, k]
-            PHt[i, j] = t
+    G = np.zeros((m, n))  # H P, row by row
+    for r in range(m):
+        for k in range(n):
+            h = H[r, k]
+            for j in range(n):
+                G[r, j] += h * P[k, j]
     S = np.empty((m, m))
     for i in range(m):
         for j in range(m):
             t = 0.0
             for k in range(n):
-                t += H[i, k] * PHt[k, j]
+                t += G[i, k] * H[j, k]
             if diag:
                 if i == j:
-                    t += var[i]
+                    t += noise[i]
             else:
-                t += R[i, j]
+                t += noise[i * m + j]
             if not _isfinite(t):
                 return NONFINITE
             S[i, j] = t
     L = np.empty((m, m))
-    rows = np.arange(m)
-    if not _chol(S, rows, m, L):
-        return NOT_PD
     keep = np.empty(m, np.int64)
     nk = _nis_and_keep(S, y, ends, thr, L, nis_out, keep)
     if nk < 0:
@@ -550,14 +688,14 @@ def _lin_update(x, P, H, z, hx, var, R, ends, thr, flags, x_out, P_out, nis_out)
     if nk == 0:
         return ALL_REJECTED
     if sequential:
-        return _sequential(x, P, H, y, var, keep, nk, joseph, x_out, P_out)
+        return _sequential(x, P, H, y, noise, keep, nk, joseph, x_out, P_out)
     if not _chol(S, keep, nk, L):
         return NOT_PD
-    Kt = np.empty((nk, n))  # K^T = S_kk^-1 (P H_k^T)^T
+    Kt = np.empty((nk, n))  # K^T = S_kk^-1 (H_k P)
     b = np.empty(nk)
     for j in range(n):
         for r in range(nk):
-            b[r] = PHt[j, keep[r]]
+            b[r] = G[keep[r], j]
         _solve(L, nk, b)
         for r in range(nk):
             Kt[r, j] = b[r]
@@ -566,47 +704,31 @@ def _lin_update(x, P, H, z, hx, var, R, ends, thr, flags, x_out, P_out, nis_out)
         for r in range(nk):
             t += Kt[r, i] * y[keep[r]]
         x_out[i] = t
+    for i in range(n):  # T = P - K (H_k P), into P_out
+        for j in range(n):
+            t = P[i, j]
+            for r in range(nk):
+                t -= Kt[r, i] * G[keep[r], j]
+            P_out[i, j] = t
     if joseph:
-        # Joseph form (I - K H) P (I - K H)^T + K R K^T, with A = I - K H applied by
-        # associativity in O(n^2 m): T = A P = P - K (H P), then T A^T = T - (T H^T) K^T.
-        G = np.empty((nk, n))  # H_k P
-        for r in range(nk):
-            for j in range(n):
-                t = 0.0
-                for q in range(n):
-                    t += H[keep[r], q] * P[q, j]
-                G[r, j] = t
-        T = np.empty((n, n))
-        for i in range(n):
-            for j in range(n):
-                t = P[i, j]
-                for r in range(nk):
-                    t -= Kt[r, i] * G[r, j]
-                T[i, j] = t
-        W = np.empty((n, nk))  # K R_kk - T H_k^T
+        # Joseph form (I - K H) P (I - K H)^T + K R K^T = T + (K R_kk - T H_k^T) K^T.
+        W = np.empty((n, nk))
         for i in range(n):
             for c in range(nk):
                 if diag:
-                    t = Kt[c, i] * var[keep[c]]
+                    t = Kt[c, i] * noise[keep[c]]
                 else:
                     t = 0.0
                     for r in range(nk):
-                        t += Kt[r, i] * R[keep[r], keep[c]]
+                        t += Kt[r, i] * noise[keep[r] * m + keep[c]]
                 for q in range(n):
-                    t -= T[i, q] * H[keep[c], q]
+                    t -= P_out[i, q] * H[keep[c], q]
                 W[i, c] = t
         for i in range(n):
             for j in range(n):
-                t = T[i, j]
+                t = P_out[i, j]
                 for c in range(nk):
                     t += W[i, c] * Kt[c, j]
-                P_out[i, j] = t
-    else:
-        for i in range(n):
-            for j in range(n):
-                t = P[i, j]
-                for r in range(nk):
-                    t -= Kt[r, i] * PHt[j, keep[r]]
                 P_out[i, j] = t
     if not _finish(P_out):
         return BAD_P
@@ -624,18 +746,17 @@ def _sequential(x, P, H, y, var, keep, nk, joseph, x_out, P_out):
             P_out[i, j] = P[i, j]
     c = np.empty(n)
     k = np.empty(n)
-    g = np.empty(n)
     g2 = np.empty(n)
     T = np.empty((n, n))
     for r in range(nk):
         row = keep[r]
         s = var[row]
-        for i in range(n):
+        for j in range(n):  # c = h^T P (a row; P_out symmetric after each row)
             t = 0.0
-            for j in range(n):
-                t += P_out[i, j] * H[row, j]
-            c[i] = t
-            s += H[row, i] * t
+            for q in range(n):
+                t += H[row, q] * P_out[q, j]
+            c[j] = t
+            s += H[row, j] * t
         if not (s > 0.0) or not _isfinite(s):
             return NOT_PD
         yi = y[row]
@@ -646,18 +767,12 @@ def _sequential(x, P, H, y, var, keep, nk, joseph, x_out, P_out):
             k[i] = c[i] / s
         for i in range(n):
             x_out[i] += k[i] * yi
-        if joseph:
-            # (I - k h^T) P (I - k h^T)^T + v k k^T in O(n^2): T = P - k (h^T P), then
-            # T - (T h) k^T + v k k^T.
-            vr = var[row]
+        # T = P - k (h^T P); Joseph: T - (T h) k^T + v k k^T, else T; then symmetrise.
+        for i in range(n):
             for j in range(n):
-                t = 0.0
-                for q in range(n):
-                    t += H[row, q] * P_out[q, j]
-                g[j] = t
-            for i in range(n):
-                for j in range(n):
-                    T[i, j] = P_out[i, j] - k[i] * g[j]
+                T[i, j] = P_out[i, j] - k[i] * c[j]
+        if joseph:
+            vr = var[row]
             for i in range(n):
                 t = 0.0
                 for q in range(n):
@@ -665,11 +780,10 @@ def _sequential(x, P, H, y, var, keep, nk, joseph, x_out, P_out):
                 g2[i] = vr * k[i] - t
             for i in range(n):
                 for j in range(n):
-                    P_out[i, j] = T[i, j] + g2[i] * k[j]
-        else:
-            for i in range(n):
-                for j in range(n):
-                    P_out[i, j] -= k[i] * c[j]
+                    T[i, j] += g2[i] * k[j]
+        for i in range(n):
+            for j in range(n):
+                P_out[i, j] = 0.5 * (T[i, j] + T[j, i])
     if not _finish(P_out):
         return BAD_P
     return OK
@@ -679,6 +793,8 @@ def ukf_sigmas(x, P, scale, sig_out):
     """Merwe sigma points: row 0 = x, rows 1..n = x + scale L[:, i], rows n+1..2n =
     x - scale L[:, i] with P = L L^T (seed 003 eq. 9)."""
     n = x.shape[0]
+    if not _square(P, n) or sig_out.shape[0] != 2 * n + 1 or sig_out.shape[1] != n:
+        return BAD_SHAPE
     L = np.zeros((n, n))
     rows = np.arange(n)
     if not _chol(P, rows, n, L):
@@ -693,11 +809,31 @@ def ukf_sigmas(x, P, scale, sig_out):
     return OK
 
 
+@_jit
+def _weighted_cov(D, Wc, Q, P_out):
+    """P_out = sum_i Wc_i D_i D_i^T + Q (upper triangle, mirrored); False if not finite."""
+    N = D.shape[0]
+    n = D.shape[1]
+    for a in range(n):
+        for b in range(a, n):
+            t = 0.0
+            for i in range(N):
+                t += D[i, a] * Wc[i] * D[i, b]
+            v = t + Q[a, b]
+            if not _isfinite(v):
+                return False
+            P_out[a, b] = v
+            P_out[b, a] = v
+    return True
+
+
 def ukf_predict(Xf, Wm, Wc, Q, x_out, P_out):
-    """Weighted mean and covariance of the propagated sigma points plus Q, symmetrised
-    (seed 003 eqs. 10-11)."""
+    """Weighted mean and covariance of the propagated sigma points plus Q (seed 003
+    eqs. 10-11); exactly symmetric."""
     N = Xf.shape[0]
     n = Xf.shape[1]
+    if Wm.shape[0] != N or Wc.shape[0] != N or not _square(Q, n) or not _square(P_out, n):
+        return BAD_SHAPE
     for a in range(n):
         t = 0.0
         for i in range(N):
@@ -709,62 +845,89 @@ def ukf_predict(Xf, Wm, Wc, Q, x_out, P_out):
     for i in range(N):
         for a in range(n):
             D[i, a] = Xf[i, a] - x_out[a]
-    for a in range(n):
-        for b in range(n):
-            t = 0.0
-            for i in range(N):
-                t += D[i, a] * Wc[i] * D[i, b]
-            P_out[a, b] = t + Q[a, b]
-    for a in range(n):
-        for b in range(a + 1, n):
-            v = 0.5 * (P_out[a, b] + P_out[b, a])
-            P_out[a, b] = v
-            P_out[b, a] = v
-    for a in range(n):
-        for b in range(n):
-            if not _isfinite(P_out[a, b]):
-                return NONFINITE
+    if not _weighted_cov(D, Wc, Q, P_out):
+        return NONFINITE
     return OK
 
 
-def ukf_update(x, P, sig, Y, z, var, R, diag, ends, thr, Wm, Wc, x_out, P_out, nis_out):
-    """Unscented correction of the stacked blocks (seed 003 eqs. 12-17): y_mean = Wm Y,
-    S = Dy^T diag(Wc) Dy + R, Pxy = (sig - x)^T diag(Wc) Dy, K = Pxy S^-1 over the kept
-    rows, x += K y, P -= K S K^T. Writes x_out, P_out, nis_out; returns a status code."""
-    return _ukf_update(x, P, sig, Y, z, var, R, diag, ends, thr, Wm, Wc, x_out, P_out, nis_out)
+def ukf_predict_dev(D, Wc, Q, P_out):
+    """P_out = sum_i Wc_i D_i D_i^T + Q from the deviations D_i = residual_x(X_i, x) the
+    caller computed with the filter's state residual (seed 003 eq. 11)."""
+    N = D.shape[0]
+    n = D.shape[1]
+    if Wc.shape[0] != N or not _square(Q, n) or not _square(P_out, n):
+        return BAD_SHAPE
+    if not _weighted_cov(D, Wc, Q, P_out):
+        return NONFINITE
+    return OK
 
 
-def ukf_update1(x, P, sig, Y, z, var, R, diag, thr, Wm, Wc, x_out, P_out):
-    """``ukf_update`` for a single block with NIS gate ``thr``; returns (status, NIS)."""
-    ends = np.empty(1, np.int64)
-    ends[0] = Y.shape[1]
-    th = np.empty(1)
-    th[0] = thr
-    nis = np.zeros(1)
-    st = _ukf_update(x, P, sig, Y, z, var, R, diag, ends, th, Wm, Wc, x_out, P_out, nis)
-    return st, nis[0]
-
-
-@_jit
-def _ukf_update(x, P, sig, Y, z, var, R, diag, ends, thr, Wm, Wc, x_out, P_out, nis_out):
+def ukf_update(x, P, sig, Y, z, noise, diag, ends, thr, Wm, Wc, x_out, P_out, nis_out):
+    """Unscented correction of the stacked blocks (seed 003 eqs. 12-17) with arithmetic
+    means: y_mean = Wm Y, Dy = Y - y_mean, Dx = sig - x, then as ``ukf_update_dev``."""
     N = sig.shape[0]
     n = x.shape[0]
     m = Y.shape[1]
-    yp = np.empty(m)
+    if (
+        Y.shape[0] != N
+        or sig.shape[1] != n
+        or z.shape[0] != m
+        or Wm.shape[0] != N
+        or Wc.shape[0] != N
+    ):
+        return BAD_SHAPE
     y = np.empty(m)
+    Dy = np.empty((N, m))
     for j in range(m):
         t = 0.0
         for i in range(N):
             t += Wm[i] * Y[i, j]
-        yp[j] = t
-        v = z[j] - t
-        if not _isfinite(v):
-            return NONFINITE
-        y[j] = v
-    Dy = np.empty((N, m))
+        y[j] = z[j] - t
+        for i in range(N):
+            Dy[i, j] = Y[i, j] - t
+    Dx = np.empty((N, n))
     for i in range(N):
-        for j in range(m):
-            Dy[i, j] = Y[i, j] - yp[j]
+        for a in range(n):
+            Dx[i, a] = sig[i, a] - x[a]
+    return _ukf_core(x, P, Dx, Dy, y, noise, diag, ends, thr, Wc, x_out, P_out, nis_out)
+
+
+def ukf_update_dev(x, P, Dx, Dy, y, noise, diag, ends, thr, Wc, x_out, P_out, nis_out):
+    """``ukf_update`` from deviations the caller computed (see ``_ukf_core``)."""
+    return _ukf_core(x, P, Dx, Dy, y, noise, diag, ends, thr, Wc, x_out, P_out, nis_out)
+
+
+@_jit
+def _ukf_core(x, P, Dx, Dy, y, noise, diag, ends, thr, Wc, x_out, P_out, nis_out):
+    """Unscented correction from deviations the caller computed with its mean and residual
+    functions: Dx_i = residual_x(sigma_i, x), Dy_i = residual_z(Y_i, y_mean), innovation
+    y = residual_z(z, y_mean). S = Dy^T diag(Wc) Dy + R, NIS per block and the gate,
+    Pxy = Dx^T diag(Wc) Dy, K = Pxy S^-1 over the kept rows (Cholesky), x += K y,
+    P -= K S K^T (seed 003 eqs. 14-17). Writes x_out, P_out, nis_out; returns a status."""
+    N = Dx.shape[0]
+    n = x.shape[0]
+    m = Dy.shape[1]
+    if (
+        m == 0
+        or Dy.shape[0] != N
+        or Dx.shape[1] != n
+        or y.shape[0] != m
+        or Wc.shape[0] != N
+        or noise.shape[0] != (m if diag else m * m)
+        or not _square(P, n)
+        or not _square(P_out, n)
+        or x_out.shape[0] != n
+        or ends.shape[0] != thr.shape[0]
+        or ends.shape[0] != nis_out.shape[0]
+        or ends.shape[0] == 0
+        or ends[ends.shape[0] - 1] != m
+    ):
+        return BAD_SHAPE
+    if diag and not _variances_ok(noise, m):
+        return BAD_R
+    for j in range(m):
+        if not _isfinite(y[j]):
+            return NONFINITE
     S = np.empty((m, m))
     for a in range(m):
         for b in range(m):
@@ -773,16 +936,18 @@ def _ukf_update(x, P, sig, Y, z, var, R, diag, ends, thr, Wm, Wc, x_out, P_out, 
                 t += Dy[i, a] * Wc[i] * Dy[i, b]
             if diag:
                 if a == b:
-                    t += var[a]
+                    t += noise[a]
             else:
-                t += R[a, b]
+                t += noise[a * m + b]
             if not _isfinite(t):
                 return NONFINITE
             S[a, b] = t
+    for a in range(m):  # exactly symmetric, as on the numpy path
+        for b in range(a + 1, m):
+            v = 0.5 * (S[a, b] + S[b, a])
+            S[a, b] = v
+            S[b, a] = v
     L = np.empty((m, m))
-    rows = np.arange(m)
-    if not _chol(S, rows, m, L):
-        return NOT_PD
     keep = np.empty(m, np.int64)
     nk = _nis_and_keep(S, y, ends, thr, L, nis_out, keep)
     if nk < 0:
@@ -797,7 +962,9 @@ def _ukf_update(x, P, sig, Y, z, var, R, diag, ends, thr, Wm, Wc, x_out, P_out, 
             c = keep[r]
             t = 0.0
             for i in range(N):
-                t += (sig[i, a] - x[a]) * Wc[i] * Dy[i, c]
+                t += Dx[i, a] * Wc[i] * Dy[i, c]
+            if not _isfinite(t):
+                return NONFINITE
             Pxy[a, r] = t
     Kt = np.empty((nk, n))
     b = np.empty(nk)
@@ -838,11 +1005,9 @@ _B = types.boolean
 _c1 = types.Array(_F, 1, "C")
 _c2 = types.Array(_F, 2, "C")
 _c1r = types.Array(_F, 1, "C", readonly=True)
-_c2r = types.Array(_F, 2, "C", readonly=True)
 _r1 = types.Array(_F, 1, "A", readonly=True)
 _r2 = types.Array(_F, 2, "A", readonly=True)
 _ri = types.Array(_I, 1, "A", readonly=True)
-_pair = types.Tuple((_I, _F))
 
 # The hot kernels also get an exact signature for the usual case (every array C-contiguous
 # and writable, as numpy creates them): numba's dispatch matches it directly instead of
@@ -858,12 +1023,21 @@ SIGNATURES = {
         _I(_r1, _c2, _r2, _r2, _c1, _c2),
     ],
     "lin_update1": [
-        _F(_c1, _c2, _c2, _c1, _c1, _c1, _c2, _F, _I, _c1, _c1, _c2),
-        _F(_c1, _c2, _r2, _r1, _r1, _r1, _r2, _F, _I, _c1, _c1, _c2),
+        _F(_c1, _c2, _c2, _c1, _c1, _c1, _F, _I, _c1, _c1, _c2),
+        _F(_c1, _c2, _r2, _r1, _r1, _r1, _F, _I, _c1, _c1, _c2),
     ],
-    "lin_update": [_I(_c1, _c2, _r2, _r1, _r1, _r1, _r2, _ri, _r1, _I, _c1, _c2, _c1)],
+    "lin_update": [_I(_c1, _c2, _r2, _r1, _r1, _r1, _ri, _r1, _I, _c1, _c2, _c1)],
+    "ekf_step": [
+        _F(_c1, _c2, _c2, _c2, _c2, _c1, _c1, _c1, _F, _I, _c1, _c2, _c1, _c2),
+        _F(_r1, _c2, _r2, _r2, _r2, _r1, _r1, _r1, _F, _I, _c1, _c2, _c1, _c2),
+    ],
+    "kf_step": [
+        _F(_c1, _c2, _c2, _c2, _c2, _c1, _c1, _F, _I, _c1, _c1, _c2, _c1, _c2),
+        _F(_c1, _c2, _r2, _r2, _r2, _r1, _r1, _F, _I, _c1, _c1, _c2, _c1, _c2),
+    ],
     "ukf_sigmas": [_I(_c1, _c2, _F, _c2)],
     "ukf_predict": [_I(_r2, _c1r, _c1r, _r2, _c1, _c2)],
-    "ukf_update1": [_pair(_c1, _c2, _c2, _r2, _r1, _r1, _r2, _B, _F, _c1r, _c1r, _c1, _c2)],
-    "ukf_update": [_I(_c1, _c2, _c2, _r2, _r1, _r1, _r2, _B, _ri, _r1, _c1r, _c1r, _c1, _c2, _c1)],
+    "ukf_predict_dev": [_I(_r2, _c1r, _r2, _c2)],
+    "ukf_update": [_I(_c1, _c2, _c2, _r2, _r1, _r1, _B, _ri, _r1, _c1r, _c1r, _c1, _c2, _c1)],
+    "ukf_update_dev": [_I(_c1, _c2, _r2, _r2, _r1, _r1, _B, _ri, _r1, _c1r, _c1, _c2, _c1)],
 }

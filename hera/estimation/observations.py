@@ -11,22 +11,27 @@ optional Jacobian ``jacobian(x)``; a central-difference Jacobian is used otherwi
 errors and health statistics. Labels should be unique within one step.
 
 Building is cheap: inputs are converted to float64 arrays once, shapes are checked with
-integer comparisons, and the finiteness of the values is checked later by the filter,
-before anything touches its state.
+integer comparisons, R is checked here (variances in (0, inf); a matrix symmetric and
+positive definite), and the rest (finite z, H or h(x) of the state's size) is checked by the
+filter before anything touches its state; every error names the block.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
+
+from .numerics import NonFiniteInputError, as_covariance
 
 __all__ = ["Block", "Observations"]
 
 _F64 = np.float64
 _F64T = np.dtype(np.float64)  # dtypes are singletons: ``a.dtype is _F64T`` is a fast test
 _ND = np.ndarray
+_INF = math.inf
 
 
 def _vec(z: Any) -> np.ndarray:
@@ -47,21 +52,36 @@ def _matrix(label: str, H: Any, m: int) -> np.ndarray:
     return Hm
 
 
+def _bad_variance(label: str, v: float, what: str = "R") -> ValueError:
+    if v != v or v in (math.inf, -math.inf):
+        return NonFiniteInputError(label, "R")
+    return ValueError(f"block {label!r}: variance {what} must be > 0, got {v!r}")
+
+
 def _noise(label: str, R: Any, m: int) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """(variances, None) when R is a scalar or a vector, (None, covariance) for a matrix."""
+    """(variances, None) when R is a scalar or a vector, (None, covariance) for a matrix;
+    checked: variances in (0, inf), a matrix symmetric and positive definite."""
     if isinstance(R, float | int):
-        if not R > 0:
-            raise ValueError(f"block {label!r}: variance R must be > 0, got {R!r}")
+        if not 0.0 < R < _INF:
+            raise _bad_variance(label, float(R))
         return (np.full(m, float(R)) if m > 1 else np.array((float(R),))), None
-    Rm = R if type(R) is _ND and R.dtype is _F64T else np.asarray(R, dtype=_F64)
+    try:
+        Rm = R if type(R) is _ND and R.dtype is _F64T else np.asarray(R, dtype=_F64)
+    except (TypeError, ValueError):
+        raise ValueError(f"block {label!r}: R must be a number, a vector or a matrix") from None
     if Rm.ndim <= 1:
         var = Rm.reshape(-1)
         if var.shape[0] != m:
             raise ValueError(f"block {label!r}: {var.shape[0]} variances for {m} rows")
+        for i, v in enumerate(var.tolist()):
+            if not 0.0 < v < _INF:
+                raise _bad_variance(label, v, f"R[{i}]")
         return var, None
     if Rm.shape != (m, m):
         raise ValueError(f"block {label!r}: R has shape {Rm.shape}, expected ({m}, {m})")
-    return None, Rm
+    if not np.isfinite(Rm).all():
+        raise NonFiniteInputError(label, "R")
+    return None, as_covariance(Rm, m, f"R of block {label!r}")
 
 
 class Block:
@@ -69,10 +89,30 @@ class Block:
 
     Attributes: ``label``, ``z`` (m,), ``H`` (m, n) or None, ``h``, ``jacobian``,
     ``var`` (m,) variances when R is diagonal else None, ``R`` (m, m) full covariance or None
-    (``cov()`` always gives the matrix), ``residual``, ``dim`` (= m).
+    (``cov()`` always gives the matrix), ``noise`` (the variances, or R row by row, as one
+    vector for the compiled kernels, with ``kflags`` saying which), ``residual``, ``mean``,
+    ``dim`` (= m).
+
+    Refused here, with a ValueError naming the block: no rows, H and h both or neither,
+    H rows that do not match z, a variance that is not > 0 (NonFiniteInputError for NaN or
+    inf), a matrix R that is not symmetric or not positive definite (CovarianceError).
     """
 
-    __slots__ = ("H", "R", "dim", "h", "jacobian", "label", "residual", "var", "vectorized", "z")
+    __slots__ = (
+        "H",
+        "R",
+        "dim",
+        "h",
+        "jacobian",
+        "kflags",
+        "label",
+        "mean",
+        "noise",
+        "residual",
+        "var",
+        "vectorized",
+        "z",
+    )
 
     def __init__(
         self,
@@ -84,11 +124,14 @@ class Block:
         jacobian: Callable[[np.ndarray], Any] | None = None,
         residual: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
         vectorized: bool = False,
+        mean: Callable[[np.ndarray, np.ndarray], Any] | None = None,
     ) -> None:
         # Fast paths first (float64 ndarrays of the right rank): this runs once per sensor
         # sample, so every operation here counts.
         zv = z if type(z) is _ND and z.dtype is _F64T and z.ndim == 1 else _vec(z)
         m = zv.shape[0]
+        if not m:
+            raise ValueError(f"block {label!r}: z is empty (leave the block out instead)")
         if h is None:
             if H is None:
                 raise ValueError(f"block {label!r}: give H (linear) or h (function), got neither")
@@ -96,10 +139,20 @@ class Block:
         elif H is not None:
             raise ValueError(f"block {label!r}: give H (linear) or h (function), not both")
         if type(R) is _ND and R.dtype is _F64T and R.ndim == 1 and R.shape[0] == m:
-            var = R
+            for v in R.tolist():
+                if not 0.0 < v < _INF:
+                    _noise(label, R, m)  # raises the precise error
+            var = noise = R
             cov = None
+            self.kflags = 4  # the compiled kernels' DIAG flag: noise holds variances
         else:
             var, cov = _noise(label, R, m)
+            if cov is None:
+                noise = var
+                self.kflags = 4
+            else:
+                noise = cov.reshape(-1)
+                self.kflags = 0
         self.label = label
         self.z = zv
         self.H = H
@@ -107,7 +160,9 @@ class Block:
         self.jacobian = jacobian
         self.var = var
         self.R = cov
+        self.noise = noise
         self.residual = residual
+        self.mean = mean
         self.dim = m
         self.vectorized = vectorized
 
@@ -140,11 +195,16 @@ class Observations:
         jacobian: Callable[[np.ndarray], Any] | None = None,
         residual: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
         vectorized: bool = False,
+        mean: Callable[[np.ndarray, np.ndarray], Any] | None = None,
     ) -> Observations:
         """Append one block. ``R``: variance (scalar), variances (vector) or covariance
-        (matrix), in the squared units of ``z``. ``vectorized=True`` promises that ``h``
-        also accepts a (N, n) batch of states and returns (N, m) (used by the UKF)."""
-        self.blocks.append(Block(label, z, R, H, h, jacobian, residual, vectorized))
+        (matrix), in the squared units of ``z``. ``residual(a, b)``: the difference a - b of
+        two measurements (e.g. ``angle_residual``); also used by numerical Jacobians.
+        ``mean(Y, Wm)``: the weighted mean of the UKF's (N, m) predicted measurements
+        (e.g. ``circular_mean`` for angles; default ``Wm @ Y``). ``vectorized=True``
+        promises that ``h`` (and ``residual``) also accept a batch of N rows: h maps
+        (N, n) states to (N, m), residual (N, m) and (m,) to (N, m) (used by the UKF)."""
+        self.blocks.append(Block(label, z, R, H, h, jacobian, residual, vectorized, mean))
         return self
 
     def append(self, block: Block) -> Observations:

@@ -126,8 +126,12 @@ def nearest_branch(angle: Any, reference: Any) -> Any:
 
 
 def angle_residual(z: np.ndarray, hx: np.ndarray) -> np.ndarray:
-    """Residual z - h(x) wrapped to (-pi, pi]; pass as a block's ``residual``."""
-    return wrap_angle(z - hx)
+    """Residual z - h(x) wrapped to (-pi, pi]; pass as a block's ``residual``. Works on
+    batches too (rows of z against one hx), so the UKF calls it once for all sigma points."""
+    return wrap_angle(np.asarray(z, dtype=np.float64) - hx)
+
+
+angle_residual.vectorized = True  # type: ignore[attr-defined]
 
 
 def quat_omega(omega: Any) -> np.ndarray:

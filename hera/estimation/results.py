@@ -2,10 +2,20 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import ClassVar, NamedTuple
 
-__all__ = ["BlockOutcome", "UpdateResult", "make_outcome", "make_result", "make_result1"]
+import numpy as np
+
+__all__ = [
+    "BlockOutcome",
+    "UpdateDetails",
+    "UpdateResult",
+    "gaussian_log_likelihood",
+    "make_outcome",
+    "make_result",
+]
 
 
 class BlockOutcome(NamedTuple):
@@ -20,11 +30,43 @@ class BlockOutcome(NamedTuple):
     threshold: float | None = None
 
 
+class UpdateDetails(NamedTuple):
+    """What an update computed, for the rows it fused (``update(..., details=True)``), in
+    block order: ``labels`` of the fused blocks, innovation ``y`` (m,), its covariance
+    ``S`` (m, m) = H P H^T + R (KF/EKF) or the unscented one (UKF), gain ``K`` (n, m), the
+    linearised ``H`` (m, n; None for the UKF), and ``log_likelihood`` = log N(y; 0, S) =
+    -(y^T S^-1 y + log det S + m log 2 pi) / 2 (natural log, of the fused rows jointly)."""
+
+    labels: tuple[str, ...]
+    y: np.ndarray
+    S: np.ndarray
+    K: np.ndarray
+    H: np.ndarray | None
+    log_likelihood: float
+
+
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+def gaussian_log_likelihood(nis: float, log_det: float, m: int) -> float:
+    """log N(y; 0, S) from y^T S^-1 y, log det S and the dimension m."""
+    return -0.5 * (nis + log_det + m * _LOG_2PI)
+
+
 @dataclass(slots=True)
 class UpdateResult:
-    """Outcome of ``update``: ``outcomes`` in block order; helpers by label."""
+    """Outcome of ``update``: ``outcomes`` in block order; helpers by label. ``details``
+    (an :class:`UpdateDetails`) is None unless the update was asked for it and fused a
+    block."""
 
     outcomes: list[BlockOutcome] = field(default_factory=list)
+    details: ClassVar[UpdateDetails | None] = None  # an instance attribute of DetailedResult
+
+    @property
+    def log_likelihood(self) -> float | None:
+        """Log-likelihood of the fused rows (see UpdateDetails), or None without details."""
+        d = self.details
+        return None if d is None else d.log_likelihood
 
     @property
     def accepted(self) -> list[str]:
@@ -50,6 +92,16 @@ class UpdateResult:
         return self.updated
 
 
+class DetailedResult(UpdateResult):
+    """An UpdateResult that carries its :class:`UpdateDetails`."""
+
+    __slots__ = ("details",)
+
+    def __init__(self, outcomes: list[BlockOutcome], details: UpdateDetails | None) -> None:
+        self.outcomes = outcomes
+        self.details = details  # type: ignore[misc]
+
+
 _new = object.__new__
 _tuple_new = tuple.__new__
 _set_outcomes = UpdateResult.outcomes.__set__  # type: ignore[attr-defined]
@@ -67,14 +119,4 @@ def make_result(outcomes: list[BlockOutcome]) -> UpdateResult:
     """``UpdateResult(outcomes)`` for the hot path (same object, no dataclass ``__init__``)."""
     r = _new(UpdateResult)
     _set_outcomes(r, outcomes)
-    return r
-
-
-def make_result1(
-    label: str, dim: int, nis: float, accepted: bool, threshold: float | None
-) -> UpdateResult:
-    """``UpdateResult([BlockOutcome(label, dim, nis, accepted, threshold)])`` for the
-    one-block hot path: ``make_result([make_outcome(...)])`` with two calls less."""
-    r = _new(UpdateResult)
-    _set_outcomes(r, [_tuple_new(BlockOutcome, (label, dim, nis, accepted, threshold))])
     return r

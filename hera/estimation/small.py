@@ -1,83 +1,84 @@
-"""Closed-form helpers for tiny matrices (m <= 3), where numpy call overhead dominates.
+"""Cholesky helpers for tiny matrices (m <= 3) on plain Python floats, where numpy's call
+overhead dominates the arithmetic.
 
-These work on plain Python floats: the innovation covariance S of a 1-3 row update is read
-once with ``tolist()`` and inverted by the adjugate formula, which is far cheaper than
-``np.linalg.inv`` at these sizes. Every function here is tested against the numpy path.
+The innovation covariance S of a 1-3 row update is read once with ``tolist()``, factorised
+S = L L^T (which is also the positive-definiteness test), and its lower-triangular factor
+inverted by forward substitution. Solves with S then go through L: NIS = |L^-1 y|^2 and
+K^T = L^-T (L^-1 G). Unlike the adjugate (cofactor) inverse, whose determinant and cofactors
+cancel catastrophically when S is ill-conditioned, this loses no more than the conditioning
+of S itself costs (Higham, "Accuracy and Stability of Numerical Algorithms", ch. 8 and 10).
+Every function here is tested against extended-precision references.
 """
 
 from __future__ import annotations
 
 import math
 
-import numpy as np
+__all__ = ["chol_small", "lower_inverse", "nis_small"]
 
-__all__ = ["inv_small", "quad_form_small"]
-
-
-def _inv1(s: list[list[float]]) -> list[list[float]] | None:
-    a = s[0][0]
-    if not a > 0.0 or not math.isfinite(a):
-        return None
-    return [[1.0 / a]]
+_sqrt = math.sqrt
+_INF = math.inf
 
 
-def _inv2(s: list[list[float]]) -> list[list[float]] | None:
-    (a, b), (c, d) = s
-    det = a * d - b * c
-    if not (a > 0.0 and det > 0.0) or not math.isfinite(det):
-        return None
-    inv = 1.0 / det
-    off = -0.5 * (b + c) * inv  # S is symmetric up to roundoff: use the mean
-    return [[d * inv, off], [off, a * inv]]
+def chol_small(s: list[list[float]]) -> list[list[float]] | None:
+    """Lower Cholesky factor L (S = L L^T) of a small symmetric matrix given as nested
+    lists; only the lower triangle of S is read. None when S is not positive definite or
+    not finite."""
+    m = len(s)
+    if m == 1:
+        a = s[0][0]
+        if not 0.0 < a < _INF:
+            return None
+        return [[_sqrt(a)]]
+    L = [[0.0] * m for _ in range(m)]
+    for j in range(m):
+        Lj = L[j]
+        d = s[j][j]
+        for p in range(j):
+            d -= Lj[p] * Lj[p]
+        if not 0.0 < d < _INF:
+            return None
+        d = _sqrt(d)
+        Lj[j] = d
+        for i in range(j + 1, m):
+            Li = L[i]
+            t = s[i][j]
+            for p in range(j):
+                t -= Li[p] * Lj[p]
+            if not math.isfinite(t):
+                return None
+            Li[j] = t / d
+    return L
 
 
-def _inv3(s: list[list[float]]) -> list[list[float]] | None:
-    (a, b, c), (d, e, f), (g, h, i) = s
-    c00 = e * i - f * h
-    c01 = f * g - d * i
-    c02 = d * h - e * g
-    det = a * c00 + b * c01 + c * c02
-    # Leading minors positive <=> positive definite (Sylvester's criterion).
-    if not (a > 0.0 and a * e - b * d > 0.0 and det > 0.0) or not math.isfinite(det):
-        return None
-    inv = 1.0 / det
-    c11 = a * i - c * g
-    c12 = c * d - a * f
-    c22 = a * e - b * d
-    c10 = c * h - b * i
-    c20 = b * f - c * e
-    c21 = b * g - a * h
-    x01 = 0.5 * (c10 + c01) * inv
-    x02 = 0.5 * (c20 + c02) * inv
-    x12 = 0.5 * (c21 + c12) * inv
-    return [[c00 * inv, x01, x02], [x01, c11 * inv, x12], [x02, x12, c22 * inv]]
+def lower_inverse(L: list[list[float]]) -> list[list[float]]:
+    """Inverse of a lower-triangular matrix with a positive diagonal (forward substitution
+    on the columns of I); lower triangular itself."""
+    m = len(L)
+    if m == 1:
+        return [[1.0 / L[0][0]]]
+    inv = [[0.0] * m for _ in range(m)]
+    for c in range(m):
+        for i in range(c, m):
+            t = 1.0 if i == c else 0.0
+            Li = L[i]
+            for p in range(c, i):
+                t -= Li[p] * inv[p][c]
+            inv[i][c] = t / Li[i]
+    return inv
 
 
-_INV = (None, _inv1, _inv2, _inv3)
-
-
-def inv_small(s: list[list[float]]) -> list[list[float]] | None:
-    """Inverse of a symmetric positive-definite 1x1, 2x2 or 3x3 matrix given as nested lists.
-
-    Returns None when the matrix is not positive definite (Sylvester's criterion on the
-    leading minors) or not finite, so the caller can raise a precise error. The result is
-    exactly symmetric.
-    """
-    return _INV[len(s)](s)
-
-
-def quad_form_small(y: list[float], s_inv: list[list[float]]) -> float:
-    """y^T S^-1 y for a short vector y (the normalised innovation squared)."""
+def nis_small(Linv: list[list[float]], y: list[float]) -> float:
+    """y^T S^-1 y = |L^-1 y|^2 (the normalised innovation squared) from L^-1."""
     total = 0.0
-    for i, yi in enumerate(y):
-        row = s_inv[i]
-        acc = 0.0
-        for j, yj in enumerate(y):
-            acc += row[j] * yj
-        total += yi * acc
+    for i, row in enumerate(Linv):
+        w = 0.0
+        for p in range(i + 1):
+            w += row[p] * y[p]
+        total += w * w
     return total
 
 
-def as_array(rows: list[list[float]]) -> np.ndarray:
-    """Nested lists to a float64 array (tiny helper kept for symmetry with ``tolist``)."""
-    return np.array(rows, dtype=np.float64)
+def log_det_small(L: list[list[float]]) -> float:
+    """log det S = 2 sum(log L_ii) from the Cholesky factor."""
+    return 2.0 * sum(math.log(L[i][i]) for i in range(len(L)))

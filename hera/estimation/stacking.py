@@ -12,13 +12,12 @@ import numpy as np
 from .gating import gate_threshold
 from .observations import Block
 
-__all__ = ["EMPTY1", "EMPTY2", "SCRATCH", "block_layout", "grow_scratch", "stack_noise"]
+__all__ = ["EMPTY1", "SCRATCH", "block_layout", "grow_scratch", "stack_noise"]
 
-# Placeholders for unused kernel arguments. Writable on purpose: numba's dispatch types a
+# Placeholder for an unused kernel argument. Writable on purpose: numba's dispatch types a
 # writable C array through its fast path (a read-only one costs a slower lookup), and an
 # array of size zero has nothing to write to.
 EMPTY1 = np.zeros(0)
-EMPTY2 = np.zeros((0, 0))
 
 # Scratch array of the allocation-free kernels: ``SCRATCH[0]``, shared by every filter. The
 # kernels hold the GIL for their whole run (no ``nogil``, no callbacks into Python) and keep

@@ -11,6 +11,7 @@ class Beacon(Measure):
     name = "beacon"
     period = 0.01
     columns = ("one [1]",)
+    inputs = ()
 
     def measure(self) -> list[float]:
         return [1.0]

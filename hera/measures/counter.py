@@ -33,6 +33,11 @@ class Counter(Measure):
         ],
     )
 
+    @classmethod
+    def reads(cls, args: Mapping[str, Any]) -> tuple[str, ...]:
+        """Every publication whose name starts with its prefix."""
+        return (cls.prepare_args(args)["prefix"] + "*",)
+
     def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
         args = self.prepare_args(args)
         super().init(args, ctx)
@@ -46,14 +51,14 @@ class Counter(Measure):
         now = time.monotonic()
         alive = 0
         seen: dict[tuple[str, str], float] = {}
-        for name in self.ctx.store.names():
-            if not name.startswith(self.prefix):
+        fresh = self.fresh_cycles * period
+        for s in self.ctx.store.snapshot():  # one look at the store, not one per name
+            if not s.name.startswith(self.prefix) or now - s.arrival > fresh:
                 continue
-            for s in self.ctx.store.fresh(name, max_age=self.fresh_cycles * period, now=now):
-                key = (name, s.node)
-                # a streak starts at the first fresh sample after a gap (or at start-up)
-                seen[key] = start = self._streak.get(key, s.arrival)
-                if now - start >= self.min_age_cycles * period:
-                    alive += 1
+            key = (s.name, s.node)
+            # a streak starts at the first fresh sample after a gap (or at start-up)
+            seen[key] = start = self._streak.get(key, s.arrival)
+            if now - start >= self.min_age_cycles * period:
+                alive += 1
         self._streak = seen
         return [float(alive)]

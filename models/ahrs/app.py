@@ -78,9 +78,9 @@ def attitude_errors(series: Series, truth: Truth) -> tuple[np.ndarray, ...]:
 class AhrsApp(Application):
     """Attitude and heading of a Pmod NAV (thesis ch. 7.1): ours and the thesis's e11."""
 
-    name = "attitude"
+    name = "attitude3d"
     title = "attitude and heading from a 9-axis IMU: ours and the thesis's e11 (ch. 7.1)"
-    measures = ("attitude", "attitude_thesis")
+    measures = ("attitude_mekf", "attitude_thesis")
     metrics = (
         Metric("att_mean_deg", "att mean", "deg"),
         Metric("att_max_deg", "att max", "deg"),

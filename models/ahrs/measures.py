@@ -8,9 +8,9 @@ from hera.models.ahrs.model import AhrsModel, ThesisAhrsModel
 
 
 class Ahrs(FusionMeasure):
-    """``attitude``: attitude and heading from ``nav3``, our multiplicative EKF."""
+    """``attitude_mekf``: attitude and heading from ``nav3``, our multiplicative EKF."""
 
-    name = "attitude"
+    name = "attitude_mekf"
     period = 0.05
     model_class = AhrsModel
     columns = AhrsModel.columns

@@ -29,6 +29,7 @@ from hera.application import (
     Panel,
     Series,
     Truth,
+    WebPanel,
 )
 from hera.models.train.measures import (
     OmegaAcc,
@@ -254,6 +255,29 @@ class TrainApp(Application):
         title = "estimates" + (" (truth from the simulated world)" if truth is not None else "")
         cols = ("model", "node", "omega rad/s", "err %", "radius m", "err cm", "x m", "y m")
         return Panel(title, (*cols, "pos err cm"), tuple(rows))
+
+    def web_panel(self, estimates: Sequence[Estimate], truth: Truth | None) -> WebPanel | None:
+        """The track seen from above: the true circle and train, and every model's
+        position estimate (heading: the direction of travel, theta + pi/2)."""
+        points = []
+        for e in estimates:
+            v = e.values
+            if X in v and Y in v:
+                heading = v[THETA] + math.pi / 2 if THETA in v else None
+                points.append(
+                    {"label": f"{self.label(e.name, e.measure)} {e.node}", "x": v[X], "y": v[Y]}
+                    | ({"heading": heading} if heading is not None else {})
+                )
+        if not points:
+            return None
+        shapes = []
+        if truth is not None:
+            tr = truth.at(max(e.t for e in estimates))
+            cx = tr[X] - tr[RADIUS] * math.cos(tr[THETA])
+            cy = tr[Y] - tr[RADIUS] * math.sin(tr[THETA])
+            shapes.append({"circle": [cx, cy, tr[RADIUS]], "label": "track"})
+            points.append({"label": "truth", "x": tr[X], "y": tr[Y], "truth": True})
+        return WebPanel("train on its track", "plane", {"shapes": shapes, "points": points})
 
 
 def _f(value: float | None, fmt: str) -> str:

@@ -58,6 +58,7 @@ class _NavMeasure(Measure):
     """Shared set-up: the board, the truth recorder."""
 
     truth_columns: ClassVar[tuple[str, ...]] = ()
+    inputs = ()  # reads its board, not the store
 
     board: NavDriver
     _truth: TruthRecorder | None = None

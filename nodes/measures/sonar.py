@@ -2,7 +2,8 @@
 
 Publishes nothing ("undefined") when the range exceeds ``max_range``. Synchronised by
 default (``sync = true``): the runtime asks the group's sync service for a slot and sets
-``ctx.grant`` while the step runs; the ping is announced with that grant. Counters:
+``ctx.grant`` (the sync turn) while the step runs; the driver checks it at the trigger, and
+the ping is announced with that grant. Counters:
 ``pings``, ``crosstalk`` (readings corrupted by another sonar of the group sounding at the
 same time), ``dropouts``.
 
@@ -53,6 +54,7 @@ class Sonar(Measure):
     sync = True
     slot = 0.06  # one ping (49 ms) plus margin
     columns = ("range [m]", "x [m]", "y [m]")
+    inputs = ()  # reads its board, not the store
     arguments = SONAR_ARGS
 
     def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
@@ -78,6 +80,8 @@ class Sonar(Measure):
 
     def measure(self) -> Reading | None:
         try:
+            # the driver checks the sync turn at its trigger (the simulator also announces
+            # the grant with its ping)
             s = self.board.read_sample(self.ctx.grant)
         except NoReading:
             self.ctx.count("dropouts")

@@ -35,7 +35,7 @@ def _installed_layout(dest: Path) -> Path:
 
 def _lint(tree: Path) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [str(LINT), "--config", str(ROOT / "pyproject.toml"), "--no-cache"],
+        [str(LINT), str(ROOT / "pyproject.toml"), "--no-cache"],
         cwd=tree,
         env={"PYTHONPATH": str(tree), "PATH": "/usr/bin:/bin"},
         capture_output=True,
@@ -88,9 +88,14 @@ def _runtime_modules() -> list[Path]:
 
 
 def _strings(path: Path) -> list[tuple[int, str]]:
-    """String constants of a module that are not docstrings."""
+    """String constants of a module that are not docstrings, nor the values of a
+    module-level ``HELP_EXAMPLES`` dict (help texts that show the shipped examples)."""
     tree = ast.parse(path.read_text())
     docs = set()
+    for node in tree.body:
+        target = getattr(node, "targets", [None])[0] if isinstance(node, ast.Assign) else None
+        if isinstance(target, ast.Name) and target.id == "HELP_EXAMPLES":
+            docs.update(id(c) for c in ast.walk(node.value) if isinstance(c, ast.Constant))
     for node in ast.walk(tree):
         body = getattr(node, "body", None)
         first = body[0] if isinstance(body, list) and body else None

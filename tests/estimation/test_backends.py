@@ -286,7 +286,7 @@ def test_ukf_trajectory_matches_numpy(use, numba_kernels, n, sizes, gate, full_R
 
 
 @pytest.mark.parametrize("name", ["numpy", "numba"])
-@pytest.mark.parametrize("bad", ["z", "R", "H", "h"])
+@pytest.mark.parametrize("bad", ["z", "H", "h"])
 def test_nonfinite_rejected_state_unchanged(use, name, bad):
     use(name)
     n = 3
@@ -295,8 +295,6 @@ def test_nonfinite_rejected_state_unchanged(use, name, bad):
     z, R, H = np.ones(2), np.ones(2), np.ones((2, n))
     if bad == "z":
         z = np.array([1.0, np.nan])
-    elif bad == "R":
-        R = np.array([1.0, np.inf])
     elif bad == "H":
         H = H.copy()
         H[1, 2] = np.nan
@@ -312,17 +310,32 @@ def test_nonfinite_rejected_state_unchanged(use, name, bad):
     np.testing.assert_array_equal(kf.P, P0)
 
 
+@pytest.mark.parametrize(
+    "R", [np.array([1.0, np.inf]), [1.0, np.nan], np.array([[1, 0], [0, np.nan]])]
+)
+def test_nonfinite_R_refused_by_add(R):
+    with pytest.raises(NonFiniteInputError) as ei:
+        Observations().add("s", np.ones(2), H=np.ones((2, 3)), R=R)
+    assert ei.value.label == "s" and ei.value.what == "R"
+
+
 @pytest.mark.parametrize("name", ["numpy", "numba"])
 def test_bad_covariance_and_foreign_arrays(use, name):
     use(name)
     ukf = UnscentedKalmanFilter(np.zeros(2), np.eye(2), f=lambda x, dt, u: x, Q=np.eye(2))
-    ukf.P = np.array([[1.0, 2.0], [2.0, 1.0]])  # not PD
-    with pytest.raises(CovarianceError):
-        ukf.predict(0.1)
-    # Arrays the user swapped in (other dtype / layout) still work (numpy fallback).
+    with pytest.raises(CovarianceError, match="not positive semi-definite"):
+        ukf.P = np.array([[1.0, 2.0], [2.0, 1.0]])  # indefinite: refused where it enters
+    np.testing.assert_array_equal(ukf.P, np.eye(2))
+    # Arrays of another layout or dtype are converted on assignment, the same on both
+    # backends: the state is always a C-contiguous float64 array.
     kf = KalmanFilter(np.zeros(3), np.eye(3), F=np.eye(3), Q=np.eye(3))
     kf.P = np.asfortranarray(2.0 * np.eye(3))[:, :]
     kf.x = np.arange(3)  # integers
+    assert kf.x.dtype == np.float64 and kf.P.flags.c_contiguous
+    kf.x = [1.0, 2.0, 3.0]  # a list
+    np.testing.assert_array_equal(kf.x, [1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match="x has 2 values, the state has 3"):
+        kf.x = [1.0, 2.0]
     kf.predict(0.1)
     kf.update(Observations().add("z", [1.0], H=np.array([[1, 0, 0]]), R=1.0))
     assert kf.P[0, 0] == pytest.approx(3.0 - 9.0 / 4.0)
@@ -340,9 +353,9 @@ def test_bad_covariance_and_foreign_arrays(use, name):
 def test_single_block_kernel_matches_numpy(
     use, numba_kernels, n, m, kind, full_R, joseph, symmetric
 ):
-    """Every branch of lin_update1: innovation mode, diagonal/full R, Joseph (expanded form
-    for m <= 3 with diagonal R, T/W form otherwise) or short form, P exactly symmetric (H P
-    taken from P H^T) or not."""
+    """Every branch of lin_update1: innovation mode, diagonal/full R, one row (scalar S) or
+    several (Cholesky), Joseph or short form, P given exactly symmetric or asymmetric by an
+    ulp (symmetrised where it enters, the same on both backends)."""
     rng = np.random.default_rng(n * 97 + m * 13 + len(kind))
     x, P = rng.normal(size=n), _spd(rng, n)
     if not symmetric and n > 1:  # asymmetric by one ulp, as roundoff leaves a user's P
@@ -354,7 +367,7 @@ def test_single_block_kernel_matches_numpy(
         )
         np.testing.assert_allclose(xb, xa, **TOL)
         np.testing.assert_allclose(Pb, Pa, **TOL)
-        assert np.array_equal(Pb, Pb.T) or (not rb.updated and Pb is P)
+        assert np.array_equal(Pb, Pb.T)
         _same_result(ra, rb)
 
 
@@ -418,43 +431,62 @@ def test_kernels_reject_inconsistent_shapes(numba_kernels):
     """Called directly with arrays that do not fit together, the kernels return BAD_SHAPE
     (never read or write out of bounds); wrong ranks or dtypes are refused by dispatch."""
     from hera.estimation import kernels_numba as kn
-    from hera.estimation.stacking import EMPTY2, SCRATCH
+    from hera.estimation.stacking import SCRATCH
 
     k = backend._numba_kernels()
-    n, m = 3, 2
-    x, P, H = np.zeros(n), np.eye(n), np.ones((m, n))
-    z, hx, var = np.ones(m), np.zeros(m), np.ones(m)
-    ws = SCRATCH[0]
-    ok = (x, P, H, z, hx, var, EMPTY2, math.inf, kn.DIAG | kn.JOSEPH | kn.MODE_HX)
-    assert k.lin_update1(*ok, ws, np.empty(n), np.empty((n, n))) >= 0.0
-    bad = [
-        (0, np.zeros(n + 1)),
-        (1, np.eye(n + 1)),
-        (2, np.ones((m, n + 1))),
-        (3, np.ones(m + 1)),
-        (4, np.zeros(m - 1)),
-        (5, np.ones(m + 2)),
-    ]
-    for i, arr in bad:
-        args = list(ok)
-        args[i] = arr
-        got = k.lin_update1(*args, ws, np.empty(n), np.empty((n, n)))
-        assert got == kn.BAD_SHAPE, i
-    assert k.lin_update1(*ok, ws, np.empty(n + 1), np.empty((n, n))) == kn.BAD_SHAPE
-    assert k.lin_update1(*ok, ws, np.empty(n), np.empty((n, n + 1))) == kn.BAD_SHAPE
-    full = list(ok)
-    full[-1] = kn.JOSEPH | kn.MODE_HX  # full R expected: EMPTY2 does not fit
-    assert k.lin_update1(*full, ws, np.empty(n), np.empty((n, n))) == kn.BAD_SHAPE
-    assert k.lin_update1(*ok, np.empty(3), np.empty(n), np.empty((n, n))) == kn.WS_SMALL
-    with pytest.raises(TypeError):
-        k.lin_update1(x, P, H.ravel(), *ok[3:], ws, np.empty(n), np.empty((n, n)))
-    with pytest.raises(TypeError):
-        k.lin_update1(x, P, H.astype(np.float32), *ok[3:], ws, np.empty(n), np.empty((n, n)))
+    n = 3
+    for m in (1, 2):
+        x, P, H = np.zeros(n), np.eye(n), np.ones((m, n))
+        z, hx, var = np.ones(m), np.zeros(m), np.ones(m)
+        ws = SCRATCH[0]
+        ok = (x, P, H, z, hx, var, math.inf, kn.DIAG | kn.JOSEPH | kn.MODE_HX)
+        assert k.lin_update1(*ok, ws, np.empty(n), np.empty((n, n))) >= 0.0
+        bad = [
+            (0, np.zeros(n + 1)),
+            (1, np.eye(n + 1)),
+            (2, np.ones((m, n + 1))),
+            (3, np.ones(m + 1)),
+            (4, np.zeros(m + 1)),
+            (5, np.ones(m + 2)),
+        ]
+        for i, arr in bad:
+            args = list(ok)
+            args[i] = arr
+            got = k.lin_update1(*args, ws, np.empty(n), np.empty((n, n)))
+            assert got == kn.BAD_SHAPE, (m, i)
+        assert k.lin_update1(*ok, ws, np.empty(n + 1), np.empty((n, n))) == kn.BAD_SHAPE
+        assert k.lin_update1(*ok, ws, np.empty(n), np.empty((n, n + 1))) == kn.BAD_SHAPE
+        if m > 1:
+            full = list(ok)
+            full[-1] = kn.JOSEPH | kn.MODE_HX  # a full R expected: m * m values, not m
+            assert k.lin_update1(*full, ws, np.empty(n), np.empty((n, n))) == kn.BAD_SHAPE
+        assert k.lin_update1(*ok, np.empty(3), np.empty(n), np.empty((n, n))) == kn.WS_SMALL
+        neg = list(ok)
+        neg[5] = -var
+        assert k.lin_update1(*neg, ws, np.empty(n), np.empty((n, n))) == kn.BAD_R
+        with pytest.raises(TypeError):
+            k.lin_update1(x, P, H.ravel(), *ok[3:], ws, np.empty(n), np.empty((n, n)))
+        with pytest.raises(TypeError):
+            k.lin_update1(x, P, H.astype(np.float32), *ok[3:], ws, np.empty(n), np.empty((n, n)))
     Po = np.empty((n, n))
     assert k.ekf_predict(x, P, np.eye(n + 1), P, ws, Po) == kn.BAD_SHAPE
     assert k.ekf_predict(np.zeros(n + 1), P, P, P, ws, Po) == kn.BAD_SHAPE
     assert k.kf_predict(x, P, P, np.eye(n - 1), ws, np.empty(n), Po) == kn.BAD_SHAPE
     assert k.kf_predict(x, P, P, P, np.empty(2), np.empty(n), Po) == kn.WS_SMALL
+    # the UKF kernels on deviations: OK for consistent shapes, BAD_SHAPE otherwise
+    N = 2 * n + 1
+    Wc = np.full(N, 1.0 / N)
+    D = np.random.default_rng(1).normal(size=(N, n))
+    assert k.ukf_predict_dev(D, Wc, P, Po) == kn.OK
+    assert k.ukf_predict_dev(D[:, :2], Wc, P, Po) == kn.BAD_SHAPE
+    Dy = D[:, :2]
+    ends, thr = np.array([2]), np.array([math.inf])
+    args = (x, P, D, Dy, np.ones(2), np.ones(2), True, ends, thr, Wc)
+    assert k.ukf_update_dev(*args, np.empty(n), np.empty((n, n)), np.empty(1)) == kn.OK
+    assert (
+        k.ukf_update_dev(*args[:4], np.ones(3), *args[5:], np.empty(n), Po, np.empty(1))
+        == kn.BAD_SHAPE
+    )
 
 
 @pytest.mark.parametrize("name", ["numpy", "numba"])
@@ -473,3 +505,50 @@ def test_wrong_jacobian_shapes_raise_clearly(use, name):
     with pytest.raises(ValueError, match="block 'r'"):
         ekf.update(obs)
     assert ekf.x is x0 and ekf.P is P0
+
+
+def test_compiled_paths_do_not_fall_back(use, numba_kernels, monkeypatch):
+    """On the numba backend every ordinary step runs compiled: with the numpy fallbacks
+    made to fail, each kind of block (linear, Jacobian, numerical Jacobian, residual, full
+    R, several blocks, sequential rows) and the UKF with mean/residual functions still
+    update and predict (so the agreement tests above compare two implementations)."""
+    from hera.estimation import angle_residual, circular_mean, make_mean, make_residual
+    from hera.estimation import ukf as ukf_mod
+
+    use("numba")
+
+    def boom(*a, **k):
+        raise AssertionError("numpy fallback used")
+
+    monkeypatch.setattr(corr, "linearised_update_numpy", boom)
+    monkeypatch.setattr(ukf_mod.UnscentedKalmanFilter, "_correct_numpy", boom)
+    rng = np.random.default_rng(9)
+    n = 4
+    for sizes, kinds, full in (
+        ((1,), "H", False),
+        ((2,), "J", True),
+        ((3,), "N", False),
+        ((1,), "W", False),
+        ((2, 1), "HJ", False),
+        ((5,), "H", False),
+    ):
+        kf = KalmanFilter(np.zeros(n), np.eye(n), F=np.eye(n), Q=0.1)
+        kf.predict(0.1)
+        res = kf.update(_obs(rng, n, sizes, kinds, full_R=full))
+        assert res.updated
+    ukf = UnscentedKalmanFilter(
+        np.zeros(n),
+        np.eye(n),
+        f=lambda x, dt, u: x,
+        Q=0.1,
+        x_mean=make_mean(angles=[0]),
+        residual_x=make_residual(angles=[0]),
+    )
+    ukf.predict(0.1)
+    obs = Observations().add(
+        "b", [3.1], h=lambda x: x[:1], R=0.1, mean=circular_mean, residual=angle_residual
+    )
+    assert ukf.update(obs).updated
+    plain = UnscentedKalmanFilter(np.zeros(n), np.eye(n), f=lambda x, dt, u: x, Q=0.1)
+    plain.predict(0.1)
+    assert plain.update(_obs(rng, n, (2, 1), "HJ")).updated

@@ -41,7 +41,7 @@ def disturbed_run(tmp_path_factory):
         c.connect(timeout=60)
 
         def published() -> int:
-            return c.status("computer")["measures"]["attitude"]["published"]
+            return c.status("computer")["measures"]["attitude_mekf"]["published"]
 
         wait_for(lambda: published() > 240, 90, "12 s of attitude estimates")
         request = {"board": "nav_1/nav", "fault": "field", "sensor": "mag"}
@@ -66,7 +66,7 @@ def _errors(run: Path, name: str):
 def test_ours_meets_its_target_and_shrugs_off_the_disturbance(disturbed_run):
     run, t_on, t_off = disturbed_run
     seen = 0
-    for s, (att, tilt, head) in _errors(run, "attitude"):
+    for s, (att, tilt, head) in _errors(run, "attitude_mekf"):
         seen += 1
         t = s.t
         settled = t >= t[0] + 3.0

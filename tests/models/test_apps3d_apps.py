@@ -58,15 +58,17 @@ def test_attitude_scores_plots_and_panel(tmp_path):
     est = np.column_stack(
         (w1 * w2 - z1 * z2, x1 * w2 + y1 * z2, y1 * w2 - x1 * z2, z1 * w2 + w1 * z2)
     )
-    series = Series("attitude", "nav_1", QUAT, r.t, est, Ahrs)
+    series = Series("attitude_mekf", "nav_1", QUAT, r.t, est, Ahrs)
     s = app.score(series, truth, EvalOptions(after=0.0))
     assert abs(s["att_mean_deg"] - 0.573) < 1e-3 and s["tilt_mean_deg"] < 1e-6
     assert abs(s["heading_mean_deg"] - 0.573) < 1e-3
     files = app.plots([series], truth, tmp_path, EvalOptions())
     assert [f.name for f in files] == ["attitude_error.png", "attitude.png"]
-    e = Estimate("attitude", "nav_1", float(r.t[-1]), dict(zip(QUAT, est[-1], strict=True)), Ahrs)
+    e = Estimate(
+        "attitude_mekf", "nav_1", float(r.t[-1]), dict(zip(QUAT, est[-1], strict=True)), Ahrs
+    )
     panel = app.panel([e], truth)
-    assert panel.rows[0][0] == "attitude (ours)" and panel.rows[-1][0] == "truth"
+    assert panel.rows[0][0] == "attitude_mekf (ours)" and panel.rows[-1][0] == "truth"
     assert panel.rows[0][-1] == "-0.57"  # heading error: the estimate turned 0.57 deg ccw
 
 

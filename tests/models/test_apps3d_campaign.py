@@ -69,7 +69,7 @@ def test_position3d_spec(tmp_path, seed):
 def test_ahrs_spec(tmp_path, scenario, target, seed):
     res = _run(tmp_path, "ahrs.toml", 35, seed, scenario)
     for node in ("computer", "nav_1"):
-        ours = res[("attitude", node)]
+        ours = res[("attitude_mekf", node)]
         assert ours["att_mean_deg"] <= target, (scenario, ours)
         assert ours["estimates"] > 400
 

@@ -43,7 +43,7 @@ name = "a"
   args = { model = { sonars = { s1 = { position = [0, 0, 0], direction = [1, 1, 0] } } } }
 
   [[nodes.measures]]
-  use = "attitude"
+  use = "attitude_mekf"
   args = { model = { gyro_noise = -1 } }
 
   [[nodes.measures]]
@@ -69,7 +69,7 @@ def test_bad_model_values_are_refused_before_anything_starts(tmp_path):
         [
             ("position3d", "sonars.s1.position must be 3 finite numbers"),
             ("position3d_thesis", "not along an axis"),
-            ("attitude", "gyro_noise must be a number > 0"),
+            ("attitude_mekf", "gyro_noise must be a number > 0"),
             ("imu6dof", "q_jerk must be a number > 0, got 'x'"),
         ],
         strict=True,

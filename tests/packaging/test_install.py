@@ -122,7 +122,7 @@ def test_hera_up_from_the_checkout_runs_the_installed_package(installed, tmp_pat
         cwd=ROOT,
     )
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
-    assert "5/5 nodes answering" in out.stdout
+    assert "5/5 nodes up" in out.stdout
     logs = "".join(p.read_text() for p in (run / "logs").glob("*.log"))
     assert "Error" not in logs and "exited with code" not in out.stdout, logs[-2000:]
     assert len(list((run / "measures").glob("obs*_n*.csv"))) == 20

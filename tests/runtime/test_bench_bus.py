@@ -25,6 +25,9 @@ def test_bench_bus_quick_prints_every_figure(tmp_path):
         "crashed measure running again",
         "SIGKILLed node noticed",
         "SIGSTOPped node noticed",
+        "1 kHz p50/p99, no security",
+        "1 kHz p50/p99, user/password",
+        "1 kHz p50/p99, mutual TLS + ACL",
     ):
         assert figure in rows, out.stdout
         assert "n/a" not in rows[figure], rows[figure]

@@ -56,9 +56,9 @@ CASES = [
         '[cluster]\nname = "e"\nbase_prot = 7000\n[[nodes]]\nnmae = "a"\n',
         [
             "[cluster]: unknown key 'base_prot' (did you mean 'base_port'?); known keys: name, "
-            "host, base_port, lease_ms, sync_lease_ms, estimation_backend",
+            "host, base_port, lease_ms, sync_lease_ms, multicast_scouting, estimation_backend",
             "[[nodes]] #1: unknown key 'nmae' (did you mean 'name'?); known keys: name, port, "
-            "sync_hosts, measures",
+            "sync_hosts, measures, host, mode, listen, connect",
             "[[nodes]] #1: name is required (node name, the `<node>` of its keys)",
         ],
     ),
@@ -142,11 +142,31 @@ def test_an_unknown_control_verb_lists_the_runtime_and_application_verbs():
     from types import SimpleNamespace
 
     from hera.control import ControlPlane
+    from hera.plugins import installed_apps
 
     plane = ControlPlane(SimpleNamespace(name="a"))
     with pytest.raises(ValueError) as e:
         plane.handle("bored", {})
-    assert str(e.value) == (
-        "unknown control verb 'bored': use status, start, stop, inject, args, store, "
-        "shutdown, board"
-    )
+    apps = sorted(v for app in installed_apps() for v in app.verbs())
+    assert "board" in apps  # the simulator's, at least
+    from hera.control import RUNTIME_VERBS
+
+    assert str(e.value) == "unknown control verb 'bored': use " + ", ".join((*RUNTIME_VERBS, *apps))
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"\x81\x00\xffbinary", "not a text CSV (a recording is seq,timestamp_ms,...)"),
+        (b"1,1000.0,0.4,0.8\n2,1010.0,0.4\n", ":2: 1 values where the rows have 2"),
+        (b"1,1000.0,0.4,0.8\nx,1010.0,0.4,0.8\n", ":2: expected seq,timestamp_ms,values..."),
+    ],
+)
+def test_a_bad_recording_names_the_file_and_the_row(tmp_path, content, message):
+    rec = tmp_path / "rec" / "measures"
+    rec.mkdir(parents=True)
+    (rec / "nav_n.csv").write_bytes(content)
+    out = hera(tmp_path, "replay", str(rec.parent), "--out", str(tmp_path / "o"), "--spec", "train")
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert out.stderr.strip().splitlines()[-1].startswith(f"hera replay: {rec / 'nav_n.csv'}")
+    assert message in out.stderr

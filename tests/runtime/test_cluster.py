@@ -12,7 +12,7 @@ import msgpack
 import pytest
 from harness import cluster_env, wait_for
 
-from hera.bus import BusConfig, open_session
+from hera.bus import open_session
 from hera.wire import encode
 
 FIVE = """
@@ -55,7 +55,7 @@ def test_every_store_sees_every_node_and_observers_count_all(cluster, tmp_path):
     wait_for(lambda: seen_everywhere(c), 10, "every store to hold every (name, node)")
     # the observers themselves report all 10 observers alive, on every node
     with open_session(
-        BusConfig(connect=tuple(c.client.spec.endpoint(n.name) for n in c.client.spec.nodes))
+        c.operator_bus(connect=tuple(c.client.spec.endpoint(n.name) for n in c.client.spec.nodes))
     ) as s:
         got: dict[tuple[str, str], float] = {}
 
@@ -242,13 +242,13 @@ def test_bad_payloads_are_rejected_counted_and_harmless(cluster, tmp_path):
     c = cluster(five_nodes(tmp_path).replace('name = "five"', 'name = "bad"'))
     wait_for(lambda: seen_everywhere(c), 10, "a settled cluster")
     pids = {n.name: c.pid(n.name) for n in c.client.spec.nodes}
-    with open_session(BusConfig(connect=(c.client.spec.endpoint("n1"),))) as s:
+    with open_session(c.operator_bus(connect=(c.client.spec.endpoint("n1"),))) as s:
         time.sleep(0.2)  # let the new peer's declarations propagate before publishing
         for payload in BAD_PAYLOADS.values():
             s.put("hera/bad/data/evil/x", payload)
         s.put("hera/bad/data/evil", encode(1, 1.0, [1.0]))  # a key without a node
         # a well-formed sample still goes through afterwards
-        s.put("hera/bad/data/good/x", encode(1, 1.0, [42.0]))
+        s.put("hera/bad/data/good/n1", encode(1, 1.0, [42.0]))
 
         def all_counted():
             return all(
@@ -324,13 +324,14 @@ def test_down_from_another_terminal_stops_the_cluster(cluster, tmp_path):
 
 def test_whole_cluster_restart_keeps_the_args_without_recalibrating(cluster, tmp_path):
     """Args are persisted under each node's state dir: a second run of the whole cluster in
-    the same run dir finds every calibration and calibrates nothing again."""
+    the same run dir (``--overwrite``: the records go, the state stays) finds every
+    calibration and calibrates nothing again."""
     spec = five_nodes(tmp_path).replace('name = "five"', 'name = "again"')
     first = cluster(spec, name="run")
     wait_for(lambda: len(first.control("n1", "args", {})["args"]) == 5, 10, "5 calibrations")
     first.stop()
     assert len((tmp_path / "calib.log").read_text().splitlines()) == 5
-    second = cluster(spec, name="run")  # same run dir: same state dirs
+    second = cluster(spec, name="run", overwrite=True)  # a new run, the same state dirs
     wait_for(lambda: seen_everywhere(second), 10, "the second run settled")
     assert len((tmp_path / "calib.log").read_text().splitlines()) == 5
     assert len(second.control("n3", "args", {})["args"]) == 5

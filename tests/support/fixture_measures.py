@@ -9,6 +9,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from hera.measure import Measure, MeasureContext
+from hera.schema import Setting, Table, number, text
 
 
 def _append(path: str | None, line: str) -> None:
@@ -76,3 +77,26 @@ class Sleeper(Measure):
         if self.steps == self.hang_at:
             time.sleep(self.sleep)
         return [float(self.steps)]
+
+
+class Tunable(Measure):
+    """Publishes ``[gain, step]``: its declared argument ``gain`` (set at run time through
+    ``measure/<node>/<name>/gain``); logs each init to ``init_log``."""
+
+    name = "tunable"
+    period = 0.05
+    arguments = Table(
+        "tunable args",
+        [Setting("gain", number(), 1.0, "a gain"), Setting("init_log", text(), "", "a file")],
+    )
+
+    def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
+        args = self.prepare_args(args)
+        super().init(args, ctx)
+        self.gain = float(args["gain"])
+        self.step = 0
+        _append(args["init_log"], f"{ctx.node} {self.gain}")
+
+    def measure(self) -> list[float]:
+        self.step += 1
+        return [self.gain, float(self.step)]

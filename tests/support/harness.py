@@ -46,7 +46,15 @@ def _descendants(pid: int) -> list[int]:
 class Cluster:
     """A ``hera up`` launcher process and the client to talk to its nodes."""
 
-    def __init__(self, spec: Path, run_dir: Path, env: dict[str, str], duration: float | None):
+    def __init__(
+        self,
+        spec: Path,
+        run_dir: Path,
+        env: dict[str, str],
+        duration: float | None,
+        overwrite: bool = False,
+        extra: tuple[str, ...] = (),
+    ):
         self.run_dir = run_dir
         cmd = [
             sys.executable,
@@ -61,6 +69,10 @@ class Cluster:
         ]
         if duration is not None:
             cmd += ["--duration", str(duration)]
+        if overwrite:
+            cmd.append("--overwrite")
+        cmd += list(extra)
+        self.log = run_dir.parent / f"{run_dir.name}-launcher.log"
         self.out = open(run_dir.parent / f"{run_dir.name}-launcher.log", "w")  # noqa: SIM115
         self.proc = subprocess.Popen(cmd, env=env, stdout=self.out, stderr=subprocess.STDOUT)
         self.client = None
@@ -81,6 +93,15 @@ class Cluster:
         except (OSError, ValueError):
             return False
         return state.get("launcher_pid") == self.proc.pid
+
+    def operator_bus(self, connect: tuple[str, ...], **kw):
+        """A bus configuration joining this cluster as the operator (its credentials and
+        access control), for tests that open their own session."""
+        from hera.bus import BusConfig
+        from hera.security.access import OPERATOR
+        from hera.security.credentials import secured
+
+        return secured(self.client.spec, OPERATOR, BusConfig(connect=connect, **kw))
 
     def launcher_state(self) -> dict:
         return json.loads((self.run_dir / "launcher.json").read_text())["nodes"]

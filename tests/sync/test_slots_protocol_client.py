@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import time
-
 import msgpack
 import pytest
 
-from hera.sync.client import Grant, SlotLost, run_in_slot, slot_duration
+from hera.sync import clock
+from hera.sync.client import Grant, KnownTerms, SlotLost, Turn, run_in_slot, slot_duration
 from hera.sync.protocol import (
     AcquireRequest,
     GrantReply,
@@ -38,7 +37,7 @@ def test_one_slot_at_a_time_fifo_and_round_robin():
         w, g = table.grant(now, yes)
         assert table.grant(now, yes) is None  # one slot at a time
         order.append(w.holder)
-        assert table.release(g.epoch, g.token, used=True)
+        assert table.release(g.epoch, g.token, g.holder, used=True)
         ask(table, w.holder, now)  # asks again: back of the queue
     assert order == ["a", "b", "c", "a", "b", "c"]
 
@@ -64,7 +63,7 @@ def test_tokens_strictly_increase_across_terms():
             ask(table, "a", float(i))
             _, g = table.grant(float(i), yes)
             tokens.append(g.token)
-            table.release(g.epoch, g.token, used=True)
+            table.release(g.epoch, g.token, g.holder, used=True)
     assert tokens == sorted(set(tokens))
     assert tokens[3] >> TOKEN_BITS == 2
 
@@ -74,8 +73,9 @@ def test_slot_freed_on_release_or_after_its_lease_never_earlier():
     ask(table, "a", 0.0, d=0.02, timeout=5.0)
     ask(table, "b", 0.0, d=0.02, timeout=5.0)
     _, g = table.grant(1.0, yes)
-    assert not table.release(1, g.token + 1, used=True)  # not the slot that is out
-    assert not table.release(0, g.token, used=True)  # other term
+    assert not table.release(1, g.token + 1, "a", used=True)  # not the slot that is out
+    assert not table.release(0, g.token, "a", used=True)  # other term
+    assert not table.release(1, g.token, "b", used=True)  # not its holder
     table.expire(1.0 + 0.02 + 0.049)
     assert table.grant(1.07, yes) is None  # lease (+ margin) not over: still taken
     table.expire(1.0 + 0.02 + 0.05)
@@ -118,6 +118,7 @@ def test_clear_returns_every_held_request():
         VoteRequest(3, "s1", probe=True),
         VoteReply("s2", True, 3, "s1"),
         AcquireRequest("s1/sonar", 0.0625, 1.0),
+        AcquireRequest("s1/sonar", 0.0625, 1.0, 4, "s2"),
         GrantReply(3, (3 << 32) | 7, 0.07, "s1"),
         Release(3, (3 << 32) | 7, "s1/sonar", False),
     ],
@@ -144,6 +145,15 @@ def test_bad_vote_requests_are_rejected_clearly(payload):
         VoteRequest.decode(payload)
 
 
+def test_an_acquire_without_the_known_term_decodes_as_knowing_nothing():
+    req = AcquireRequest.decode(msgpack.packb({"h": "a", "d": 0.01, "t": 1.0}))
+    assert (req.known_epoch, req.known_leader) == (0, "")
+    with pytest.raises(ProtocolError, match="'k' must be an int >= 0"):
+        AcquireRequest.decode(msgpack.packb({"h": "a", "d": 0.01, "t": 1.0, "k": -1}))
+    with pytest.raises(ProtocolError, match="'kl' has the wrong type"):
+        AcquireRequest.decode(msgpack.packb({"h": "a", "d": 0.01, "t": 1.0, "kl": 3}))
+
+
 def test_bad_acquire_and_grant_are_rejected():
     with pytest.raises(ProtocolError):
         AcquireRequest.decode(msgpack.packb({"h": "a", "d": 0.0, "t": 1.0}))
@@ -161,7 +171,7 @@ class FakeClient:
         self.asked: list[float] = []
 
     def acquire(self, group, holder, duration, timeout):
-        asked_at = time.monotonic()
+        asked_at = clock.now()
         self.asked.append(duration)
         if self.grant_after is None:
             return None
@@ -191,12 +201,83 @@ def test_a_step_that_finds_its_slot_gone_at_the_trigger_gives_it_back_unused():
     late = []
     c.note_late = late.append
 
-    def trigger(g):
-        raise SlotLost  # e.g. a GIL switch between run_in_slot's check and the trigger
+    def trigger(turn):
+        raise SlotLost  # what turn.check_at_trigger() raises when the sound no longer fits
 
     fired, result, grant = run_in_slot(c, "g", "n/m", 0.01, trigger, timeout=1.0)
     assert (fired, result) == (False, None) and grant.token == 7
     assert c.released == [(7, False)] and late == [grant]
+
+
+class FakeClock:
+    def __init__(self, t: float = 100.0) -> None:
+        self.t = t
+        self.slept: list[float] = []
+
+    def __call__(self) -> float:
+        return self.t
+
+    def sleep(self, s: float) -> None:
+        self.slept.append(s)
+        self.t += s
+
+
+def test_turn_checks_at_the_trigger_and_the_sound_starts_at_that_reading():
+    clock = FakeClock()
+    g = Grant("g", "h", 3, 9, duration=0.05, asked_at=100.0, leader="x")
+    turn = Turn(g, 0.02, clock)
+    assert (turn.epoch, turn.token, turn.ends_at) == (3, 9, None)
+    clock.t = 100.031  # a pause since the grant: 0.031 + 0.02 > 0.05
+    with pytest.raises(SlotLost):
+        turn.check_at_trigger()
+    assert turn.fired_at is None
+    clock.t = 100.03
+    reading = turn.check_at_trigger(wall=lambda: 1.7e9, lasts=0.015)
+    assert reading.clock == 100.03 and reading.wall == 1.7e9
+    assert turn.ends_at == pytest.approx(100.045)
+    with pytest.raises(RuntimeError, match="one trigger per turn"):
+        turn.check_at_trigger()
+    with pytest.raises(ValueError, match="does not fit the 0.02 s slot"):
+        Turn(g, 0.02, clock).check_at_trigger(lasts=0.03)
+    assert Turn(g, 0.001, clock).fire(lambda r: r.clock * 2) == pytest.approx(200.06)
+
+
+def test_run_in_slot_releases_only_after_the_sound_has_ended():
+    clock = FakeClock()
+    released_at = []
+
+    class Client(FakeClient):
+        def acquire(self, group, holder, duration, timeout):
+            return Grant(group, holder, 1, 7, duration, clock.t, "x")
+
+        def release(self, grant, used):
+            released_at.append((clock.t, used))
+
+    def driver(turn):  # triggers, returns at once (a driver that does not block)
+        turn.check_at_trigger()
+        return "ok"
+
+    fired, result, _ = run_in_slot(Client(0.0), "g", "h", 0.02, driver, 1.0, clock, clock.sleep)
+    assert (fired, result) == (True, "ok")
+    assert released_at == [(pytest.approx(100.02), True)] and clock.slept
+
+
+def test_known_terms_refuse_older_and_reused_terms():
+    k = KnownTerms()
+    assert k.get("g") == (0, "") and k.accept("g", 2, "a")
+    assert k.accept("g", 2, "a") and k.accept("g", 3, "b")
+    assert not k.accept("g", 2, "a")  # older
+    assert not k.accept("g", 3, "c")  # the same epoch from another leader: reused
+    assert k.get("g") == (3, "b") and k.get("other") == (0, "")
+
+
+def test_the_sync_clock_counts_suspend_where_the_platform_allows():
+    import sys
+
+    if sys.platform.startswith("linux"):
+        assert clock.NAME == "CLOCK_BOOTTIME" and clock.COUNTS_SUSPEND
+    a, b = clock.now(), clock.now()
+    assert b >= a
 
 
 def test_run_in_slot_without_a_grant_and_with_a_failing_step():

@@ -16,11 +16,12 @@ def test_each_estimate_is_shown_with_its_error_against_the_truth_at_its_time():
     sample = {"name": "track_mag", "node": "c", "t": t, "values": est}
     (panel,) = estimates_panels({"track_mag": TrackMag}, [sample], WORLD, AppIndex([TrainApp()]))
     text = render_panel(panel)
+    assert text.splitlines()[0] == "estimates (truth from the simulated world) on node c:"
     row = next(line for line in text.splitlines() if line.startswith("track_mag (e9)"))
-    cells = row.split()[2:]  # after "track_mag (e9)": node, omega, err, r, err, x, y, pos err
-    assert cells[2] == "+2.00"  # omega error, %
-    assert cells[4] == "-1.1"  # radius error, cm
-    assert float(cells[7]) == round(100 * math.hypot(0.03, 0.04), 1)  # position error, cm
+    cells = row.split()[2:]  # after "track_mag (e9)": omega, err, r, err, x, y, pos err
+    assert cells[1] == "+2.00"  # omega error, %
+    assert cells[3] == "-1.1"  # radius error, cm
+    assert float(cells[6]) == round(100 * math.hypot(0.03, 0.04), 1)  # position error, cm
     assert text.splitlines()[-1].startswith("truth")
 
 

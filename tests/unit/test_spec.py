@@ -24,7 +24,7 @@ def test_resolved_json_round_trips(tmp_path):
 
 
 BASE = {"cluster": {"name": "c"}, "nodes": [{"name": "a"}]}
-CHUNK = "must use only letters, digits, '_', '.' and '-' (no '/', '*', '$')"
+CHUNK = "must use only letters, digits, '_', '.' and '-' (no '/', '*', '$'), at most 64 of them"
 MEASURE_KEYS = (
     "use, name, period, iterations, sync, sync_group, slot, restart, hang_factor, hang_min, "
     "seed, args"
@@ -45,20 +45,20 @@ MEASURE_KEYS = (
             {"nodes": [{"nmae": "a"}]},
             (
                 "s.toml: [[nodes]] #1: unknown key 'nmae' (did you mean 'name'?); known keys: "
-                "name, port, sync_hosts, measures",
+                "name, port, sync_hosts, measures, host, mode, listen, connect",
                 "s.toml: [[nodes]] #1: name is required (node name, the `<node>` of its keys)",
             ),
         ),
         (
             {"nodes": [{"name": "a", "sync_host": ["g"]}]},
             "s.toml: [[nodes]] #1 (a): unknown key 'sync_host' (did you mean 'sync_hosts'?); "
-            "known keys: name, port, sync_hosts, measures",
+            "known keys: name, port, sync_hosts, measures, host, mode, listen, connect",
         ),
         (
             {"cluster": {"name": "c", "base_prot": 7000}},
             "s.toml: [cluster]: unknown key "
             "'base_prot' (did you mean 'base_port'?); known keys: name, host, base_port, lease_ms, "
-            "sync_lease_ms, estimation_backend",
+            "sync_lease_ms, multicast_scouting, estimation_backend",
         ),
         (
             {"supervisor": {"intensty": 3}},
@@ -105,7 +105,7 @@ MEASURE_KEYS = (
         (
             {"wat": {}},
             "s.toml: unknown table 'wat'; known tables: cluster, supervisor, logging, "
-            "world, defaults, nodes, measures",
+            "security, world, defaults, nodes, routers, measures",
         ),
     ],
 )

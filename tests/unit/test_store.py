@@ -28,7 +28,7 @@ def test_get_returns_every_node_and_fresh_filters_by_age_and_time():
     assert [x.node for x in s.fresh("a", newer_than=150.0, now=20.0)] == ["n1"]
     assert s.fresh("a", max_age=0.5, now=20.0) == []
     assert s.names() == ["a", "b"]
-    assert s.seqs_of_node("n1") == {"a": 1, "b": 1}
+    assert s.seqs_of_node("n1") == {"a": (0, 1), "b": (0, 1)}
     assert s.latest_seq("a", "n3") == 0
 
 

@@ -1,0 +1,247 @@
+"""``hera bench scale``: many nodes on this machine, in a full peer mesh and behind routers.
+
+For 8, 16 and 32 nodes (``--nodes``), each node publishes 4 streams at 50 Hz and reads the
+4 streams of each of the 3 nodes after it (so every stream is read by 3 other nodes; stores
+subscribe by interest and take nothing else). Two topologies: a full mesh of peers on
+loopback (the embedded default), and client nodes behind one router (two for more than 16
+nodes). Measured after a warm-up, over ``--seconds``:
+
+- delivered: samples received by the readers / samples the publishers sent in between
+  (seq gaps count as losses);
+- publish-to-store latency p50 / p99 (wall clock, one host);
+- CPU per node (mean, % of one core) and in total (% of the machine), RSS per node.
+
+Targets (issue 14): 32 nodes, >= 99.9 % delivered and p99 <= 20 ms in the better topology.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+from hera.client import ClusterClient
+from hera.launcher import node_command
+from hera.measure import Measure, MeasureContext
+from hera.schema import Setting, Table, list_of, number, text
+
+STREAMS = 4
+READS = 3
+PERIOD = 0.02
+
+
+class Stream(Measure):
+    """One published stream of the benchmark: a constant value every period."""
+
+    name = "s"
+    period = PERIOD
+    columns = ("one [1]",)
+    inputs = ()
+
+    def measure(self) -> list[float]:
+        return [1.0]
+
+
+class Reader(Measure):
+    """Counts every sample of its streams (after ``warmup`` s) and their transit time;
+    reports in its status counters: received, expected (from the seqs), latency p50/p99."""
+
+    name = "reader"
+    period = 0.5
+    columns = ()
+    arguments = Table(
+        "reader args",
+        [
+            Setting("streams", list_of(text(), "a list of name/node"), (), "what it reads"),
+            Setting("warmup", number(0), 3.0, "seconds before counting starts"),
+        ],
+    )
+
+    @classmethod
+    def reads(cls, args: Mapping[str, Any]) -> tuple[str, ...]:
+        return tuple(cls.prepare_args(args)["streams"])
+
+    def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
+        args = self.prepare_args(args)
+        super().init(args, ctx)
+        self.start = time.monotonic() + args["warmup"]
+        self.first: dict[tuple[str, str], int] = {}
+        self.last: dict[tuple[str, str], int] = {}
+        self.received = 0
+        self.latency: list[float] = []
+        self.lock = threading.Lock()
+        ctx.store.add_listener(self._on_sample)
+
+    def _on_sample(self, s: Any) -> None:
+        if s.arrival < self.start:
+            return
+        key = (s.name, s.node)
+        with self.lock:
+            self.first.setdefault(key, s.seq)
+            self.last[key] = s.seq
+            self.received += 1
+            self.latency.append(s.arrival_wall - s.t)
+
+    def measure(self) -> None:
+        with self.lock:
+            lat = sorted(self.latency)
+            expected = sum(self.last[k] - self.first[k] + 1 for k in self.last)
+            c = self.ctx.counters
+            c["received"], c["expected"] = self.received, expected
+            if lat:
+                c["p50_ms"] = 1e3 * lat[len(lat) // 2]
+                c["p99_ms"] = 1e3 * lat[min(len(lat) - 1, int(0.99 * len(lat)))]
+        return None
+
+    def close(self) -> None:
+        self.ctx.store.remove_listener(self._on_sample)
+
+
+def spec_text(n: int, topology: str, warmup: float) -> str:
+    """The benchmark cluster: ``n`` nodes, ``topology`` ``mesh`` or ``routers``."""
+    from hera.launcher import free_ports
+
+    lines = [f'[cluster]\nname = "scale{n}{topology}"\nlease_ms = 3000\n']
+    routers = free_ports("127.0.0.1", 0 if topology == "mesh" else (1 if n <= 16 else 2))
+    for r, port in enumerate(routers):
+        lines.append(f'[[routers]]\nname = "r{r + 1}"\nport = {port}\n')
+    for i in range(n):
+        node = f"n{i + 1}"
+        lines.append(f'[[nodes]]\nname = "{node}"\n')
+        if routers:  # clients, split between the routers
+            port = routers[i % len(routers)]
+            lines.append(f'mode = "client"\nconnect = ["tcp/127.0.0.1:{port}"]\n')
+        for k in range(1, STREAMS + 1):
+            lines.append(f'[[nodes.measures]]\nuse = "hera.bench.scale:Stream"\nname = "s{k}"\n')
+        streams = [
+            f"s{k}/n{(i + j) % n + 1}" for j in range(1, READS + 1) for k in range(1, STREAMS + 1)
+        ]
+        lines.append(
+            '[[nodes.measures]]\nuse = "hera.bench.scale:Reader"\nname = "reader"\n'
+            f"args = {{ streams = {streams!r}, warmup = {warmup} }}\n".replace("'", '"')
+        )
+    return "".join(lines)
+
+
+def _cpu(pid: int) -> float:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except OSError:
+        return 0.0
+
+
+@contextlib.contextmanager
+def cluster(spec: str) -> Iterator[tuple[ClusterClient, subprocess.Popen, Path]]:
+    with tempfile.TemporaryDirectory(prefix="hera-scale-") as tmp:
+        path = Path(tmp) / "spec.toml"
+        path.write_text(spec)
+        env = {**os.environ, "HERA_REGISTRY": str(Path(tmp) / "registry")}
+        proc = subprocess.Popen(
+            node_command(
+                "up", str(path), "--run-dir", str(Path(tmp) / "run"), "--interval", "3600"
+            ),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            env=env,
+        )
+        client = None
+        try:
+            deadline = time.monotonic() + 60
+            while not (Path(tmp) / "run" / "cluster.json").exists():
+                if time.monotonic() > deadline or proc.poll() is not None:
+                    raise RuntimeError("the cluster did not start")
+                time.sleep(0.1)
+            client = ClusterClient.from_run_dir(Path(tmp) / "run")
+            yield client, proc, Path(tmp)
+        finally:
+            if client is not None:
+                client.close()
+            proc.terminate()
+            try:
+                proc.wait(60)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+def run(n: int, topology: str, seconds: float) -> dict[str, float]:
+    """One configuration; its figures."""
+    warmup = 5.0
+    with cluster(spec_text(n, topology, warmup)) as (client, _proc, _tmp):
+        deadline = time.monotonic() + 90
+        while len(client.status(timeout=2.0)) < n:
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"not all {n} nodes answered")
+            time.sleep(0.5)
+        time.sleep(warmup)
+        status = client.status(timeout=2.0)
+        pids = [st["pid"] for st in status.values()]
+        c0, t0 = sum(_cpu(p) for p in pids), time.monotonic()
+        time.sleep(seconds)
+        c1, t1 = sum(_cpu(p) for p in pids), time.monotonic()
+        status = client.status(timeout=3.0)
+    readers = [st["measures"]["reader"]["counters"] for st in status.values()]
+    received = sum(r.get("received", 0) for r in readers)
+    expected = sum(r.get("expected", 0) for r in readers)
+    cpu = 100 * (c1 - c0) / (t1 - t0)
+    return {
+        "answered": len(status),
+        "delivered_pct": 100 * received / expected if expected else float("nan"),
+        "p50_ms": statistics.median(r.get("p50_ms", float("nan")) for r in readers),
+        "p99_ms": max(r.get("p99_ms", float("nan")) for r in readers),
+        "cpu_node_pct": cpu / n,
+        "cpu_machine_pct": cpu / (os.cpu_count() or 1),
+        "rss_mb": statistics.mean(st.get("rss_mb") or 0.0 for st in status.values()),
+    }
+
+
+def main(argv: list[str]) -> int:
+    """Run the scale benchmark and print its table; returns 0."""
+    ap = argparse.ArgumentParser(prog="hera bench scale", description=__doc__.splitlines()[0])
+    ap.add_argument("--nodes", default="8,16,32", help="comma-separated node counts")
+    ap.add_argument("--topologies", default="mesh,routers", help="mesh and/or routers")
+    ap.add_argument("--seconds", type=float, default=15.0, help="measuring window per run")
+    ap.add_argument("--quick", action="store_true", help="8 nodes, 5 s (smoke test)")
+    args = ap.parse_args(argv)
+    sizes = [8] if args.quick else [int(x) for x in args.nodes.split(",")]
+    seconds = 5.0 if args.quick else args.seconds
+    print(
+        f"hera bench scale: {STREAMS} streams at {1 / PERIOD:.0f} Hz per node, each read by "
+        f"{READS} other nodes; {os.cpu_count()} cores",
+        flush=True,
+    )
+    head = (
+        f"{'nodes':>5} {'topology':<8} {'delivered %':>11} {'p50 ms':>7} {'p99 ms':>7} "
+        f"{'CPU/node %':>10} {'machine %':>9} {'RSS MB':>6}"
+    )
+    print(head, flush=True)
+    for n in sizes:
+        for topology in args.topologies.split(","):
+            try:
+                r = run(n, topology, seconds)
+            except RuntimeError as e:
+                print(f"{n:>5} {topology:<8} failed: {e}", flush=True)
+                continue
+            print(
+                f"{n:>5} {topology:<8} {r['delivered_pct']:>11.3f} {r['p50_ms']:>7.2f} "
+                f"{r['p99_ms']:>7.2f} {r['cpu_node_pct']:>10.1f} {r['cpu_machine_pct']:>9.1f} "
+                f"{r['rss_mb']:>6.0f}",
+                flush=True,
+            )
+    print("targets: 32 nodes >= 99.9 % delivered, p99 <= 20 ms (the better topology)")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,176 @@
+"""The lab-2 tracker of seed 000: an EKF on [d, d_dot] that fuses raw Sharp IR voltages.
+
+State x = [d (cm), v (cm/s)], constant-velocity model A = [[1, dt], [0, 1]] with dt from
+the samples' measurement times, Q(dt) = diag(q) dt / q_step (the seed's Q is per lab-2
+step of 0.1 s). Each sensor sample is one scalar measurement in **voltage space**:
+z = V, h(d) = a d^b + c, H = [a b d^(b-1), 0] (the seed's Jacobian), R = the sensor's
+variance; Joseph-form update with chi-square gating (``hera.estimation``). Samples are
+fused one by one at their own times, which is the seed's sequential scalar update with
+asynchronous sensors.
+
+A sensor is used only while the estimate lies in its range (the fit folds back below
+it), a saturated reading (0 or 3.3 V) is skipped, and a sample older than the estimate is
+counted as late and skipped. When half of the last ``lost_window`` samples were gated out
+(the sensors disagree with the estimate: the target moved faster than the model allows),
+the filter is lost and re-acquires: P gets ``p0`` added, so the next readings pull it
+back instead of being gated out for ever. Counters (``counters()``): per sensor
+``<name>_used``, ``<name>_gated`` (rejected by the gate: the short sensor's second spike,
+heavy tails) and ``<name>_out_of_range``; ``late``, ``saturated``, ``reacquired``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from hera.estimation import ExtendedKalmanFilter, Observations
+from hera.models.ir.calibration import PowerLaw, sensor_fits
+from hera.store import Sample
+
+DEFAULT_SENSORS = {"ir_medium": "GP2Y0A21YK0F", "ir_long": "GP2Y0A02YK0F"}
+SATURATED = (1e-3, 3.3 - 1e-3)
+MIN_D = 1.0
+"""The state's distance is kept >= 1 cm, where the fits are still defined (the seed's
+firmware clamps the same way)."""
+
+
+def _pair(value: Any, what: str) -> tuple[float, float]:
+    if (
+        not isinstance(value, Sequence)
+        or len(value) != 2
+        or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in value)
+    ):
+        raise ValueError(f"{what} must be two numbers, got {value!r}")
+    return float(value[0]), float(value[1])
+
+
+class IrTracker:
+    """The EKF of the module docstring. Settings: ``sensors`` (publication name ->
+    variant), ``fits`` (name -> [a, b, c]) and ``r`` (name -> V^2) to override the lab-1
+    calibration, ``q`` ([cm^2, (cm/s)^2] per ``q_step`` s), ``x0`` ([cm, cm/s]; None:
+    start from the first reading inverted), ``p0`` (variances), ``gate`` (chi-square
+    probability; 0: no gate), ``lost_window`` (samples over which half gated out means
+    "lost")."""
+
+    columns = ("distance [cm]", "velocity [cm/s]", "sigma [cm]", "gated")
+
+    def __init__(
+        self,
+        sensors: Mapping[str, str] | None = None,
+        fits: Mapping[str, Any] | None = None,
+        r: Mapping[str, float] | None = None,
+        q: Sequence[float] = (0.002, 0.03),
+        q_step: float = 0.1,
+        x0: Sequence[float] | None = None,
+        p0: Sequence[float] = (100.0, 25.0),
+        gate: float = 0.999,
+        lost_window: int = 20,
+    ) -> None:
+        self.laws: dict[str, PowerLaw] = sensor_fits(sensors or DEFAULT_SENSORS, fits, r)
+        self.inputs = tuple(self.laws)
+        qd, qv = _pair(q, "q")
+        if qd < 0 or qv < 0 or not q_step > 0:
+            raise ValueError(f"q must be two variances >= 0 and q_step > 0, got {q!r}, {q_step!r}")
+        self.q = np.array([qd, qv]) / float(q_step)
+        self.x0 = None if x0 is None else _pair(x0, "x0")
+        p = _pair(p0, "p0")
+        if not (p[0] > 0 and p[1] > 0):
+            raise ValueError(f"p0 must be two variances > 0, got {p0!r}")
+        self.p0 = np.diag(p)
+        if not 0 <= gate < 1:
+            raise ValueError(f"gate must be a probability in [0, 1) (0: no gate), got {gate!r}")
+        self.gate = float(gate) or None
+        if isinstance(lost_window, bool) or not isinstance(lost_window, int) or lost_window < 2:
+            raise ValueError(f"lost_window must be an integer >= 2, got {lost_window!r}")
+        self._recent: deque[bool] = deque(maxlen=lost_window)
+        self.ekf: ExtendedKalmanFilter | None = None
+        self.t: float | None = None
+        self._counts: dict[str, int] = {"late": 0, "saturated": 0, "reacquired": 0}
+        for name in self.inputs:
+            for what in ("used", "gated", "out_of_range"):
+                self._counts[f"{name}_{what}"] = 0
+        self.gated = 0
+
+    def _start(self, law: PowerLaw, volts: float) -> bool:
+        if self.x0 is not None:
+            d0, v0 = self.x0
+        else:
+            d0 = law.distance(volts)
+            if not law.d_min <= d0 <= law.d_max:
+                return False  # wait for a reading the fit can invert
+            v0 = 0.0
+        q = self.q
+        self.ekf = ExtendedKalmanFilter(
+            [d0, v0],
+            self.p0,
+            lambda x, dt, u: np.array([x[0] + dt * x[1], x[1]]),
+            lambda dt: np.diag(q * dt),
+            lambda x, dt, u: np.array([[1.0, dt], [0.0, 1.0]]),
+        )
+        return True
+
+    def process(self, sample: Sample) -> bool:
+        law = self.laws.get(sample.name)
+        if law is None or not sample.values:
+            return False
+        volts = float(sample.values[0])
+        if not SATURATED[0] < volts < SATURATED[1]:
+            self._counts["saturated"] += 1
+            return False
+        if self.ekf is None:
+            if not self._start(law, volts):
+                return False
+            self.t = sample.t
+            if self.x0 is None:
+                self._counts[f"{sample.name}_used"] += 1
+                return True
+        elif sample.t < self.t:
+            self._counts["late"] += 1
+            return False
+        ekf = self.ekf
+        if sample.t > self.t:
+            ekf.predict(sample.t - self.t)
+            self.t = sample.t
+        d = float(ekf.x[0])
+        if not law.d_min <= d <= law.d_max:
+            self._counts[f"{sample.name}_out_of_range"] += 1
+            self._floor()
+            return True
+        obs = Observations().add(
+            sample.name,
+            [volts],
+            h=lambda x, law=law: np.array([law.volts(x[0])]),
+            jacobian=lambda x, law=law: np.array([[law.slope(x[0]), 0.0]]),
+            R=law.var,
+        )
+        result = ekf.update(obs, gate=self.gate)
+        if result.rejected:
+            self._counts[f"{sample.name}_gated"] += 1
+            self.gated += 1
+        else:
+            self._counts[f"{sample.name}_used"] += 1
+        recent = self._recent
+        recent.append(bool(result.rejected))
+        if len(recent) == recent.maxlen and 2 * sum(recent) >= len(recent):
+            ekf.P = ekf.P + self.p0
+            self._counts["reacquired"] += 1
+            recent.clear()
+        self._floor()
+        return True
+
+    def _floor(self) -> None:
+        if self.ekf is not None and self.ekf.x[0] < MIN_D:
+            self.ekf.x[0] = MIN_D
+
+    def estimate(self) -> tuple[float, list[float]] | None:
+        if self.ekf is None or self.t is None:
+            return None
+        x, P = self.ekf.x, self.ekf.P
+        return self.t, [float(x[0]), float(x[1]), math.sqrt(max(P[0, 0], 0.0)), float(self.gated)]
+
+    def counters(self) -> dict[str, int]:
+        return dict(self._counts)

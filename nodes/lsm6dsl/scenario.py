@@ -1,0 +1,247 @@
+"""The ``balancing`` scenario: a two-wheeled self-balancing robot (seed 003, fig. 4).
+
+The robot's body turns about its wheel axle by theta (rad, about the body y axis; positive
+leans its top forward, towards +x). Timeline (s since the epoch):
+
+- ``[0, still_s)``: on its stand, still, leaning ``lean_deg``, motors off;
+- then it rises (``rise_s``, minimum jerk) and balances: a sway of ``sway_deg`` at
+  ``sway_hz`` (the balancing loop's limit cycle) plus a slow wander of ``wander_deg`` at
+  ``wander_hz``;
+- pushes every ``push_every_s`` from ``first_push_s``: a kick that starts a damped swing
+  theta = A exp(-zeta w t) sin(w_d t) of ``push_deg`` (+/- 30 %, random sign; ``push_hz``,
+  damping ratio ``push_damping``);
+- ``parked``: a list of [start, end] windows (s) when it is back on its stand (still).
+
+Each push's size and sign come from ``seed``. Only theta is the truth the tilt models are
+scored on. The accelerometer feels the wheels: balancing, the axle accelerates by
+a_w = (g sin theta - L theta'') / cos theta (an inverted pendulum of effective length
+``pendulum_m`` on a cart), so at ``sensor_m`` up the body the board reads, besides gravity,
+(sensor_m - L) theta'' along x and the centripetal sensor_m theta'^2: what the seed calls
+"parasite accelerations". The axle's travel is not tracked: position and velocity are
+relative to the axle; acceleration is absolute. The motors shake the body
+(``vibration_acc`` m/s^2, ``vibration_gyro`` rad/s, while they run).
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from hera.nodes import geometry as gm
+from hera.nodes.tof.scenario import min_jerk
+from hera.nodes.world import G, Motion, Scenario, number, register_scenario
+
+PUSH_WINDOW_S = 4.0
+"""A push counts as under way for this long after the kick (the segment ``push``)."""
+
+
+class Balancing(Scenario):
+    """See the module docstring. Angles in degrees, times in s, lengths in m."""
+
+    kind = "balancing"
+
+    def __init__(
+        self,
+        still_s: float = 8.0,
+        lean_deg: float = 3.0,
+        rise_s: float = 1.0,
+        sway_deg: float = 1.5,
+        sway_hz: float = 1.1,
+        wander_deg: float = 0.8,
+        wander_hz: float = 0.13,
+        first_push_s: float | None = None,
+        push_every_s: float = 10.0,
+        push_deg: float = 20.0,
+        push_hz: float = 0.8,
+        push_damping: float = 0.25,
+        pendulum_m: float = 0.12,
+        sensor_m: float = 0.18,
+        parked: Sequence[Sequence[float]] = (),
+        seed: int = 0,
+    ) -> None:
+        if still_s < 0 or rise_s <= 0 or push_every_s <= 0:
+            raise ValueError("balancing still_s must be >= 0 s, rise_s and push_every_s > 0 s")
+        if not 0.0 <= push_damping < 1.0:
+            raise ValueError(f"balancing push_damping must be within [0, 1), got {push_damping}")
+        if abs(push_deg) >= 60.0:
+            raise ValueError(f"balancing push_deg must be below 60 deg, got {push_deg}")
+        windows = []
+        for w in parked:
+            if len(w) != 2 or not w[0] < w[1]:
+                raise ValueError(f"balancing parked windows must be [start, end], got {w!r}")
+            windows.append((float(w[0]), float(w[1])))
+        self.still_s, self.rise_s = still_s, rise_s
+        self.lean = math.radians(lean_deg)
+        self.sway, self.sway_w = math.radians(sway_deg), 2.0 * math.pi * sway_hz
+        self.wander, self.wander_w = math.radians(wander_deg), 2.0 * math.pi * wander_hz
+        self.first_push = still_s + 5.0 if first_push_s is None else first_push_s
+        self.push_every, self.push = push_every_s, math.radians(push_deg)
+        self.push_w, self.zeta = 2.0 * math.pi * push_hz, push_damping
+        self.pendulum, self.sensor = pendulum_m, sensor_m
+        self.parked = sorted(windows)
+        self.seed = int(seed)
+        self.vibration_acc = 0.2
+        self.vibration_gyro = 0.005
+
+    # -- the plan ---------------------------------------------------------------------------
+    def _standing(self, tau: float) -> tuple[float, float, float]:
+        """w(tau) in [0, 1] (0: on the stand, 1: balancing) and its two derivatives."""
+        w, dw, ddw = self._ramp(tau - self.still_s, 1.0)
+        for start, end in self.parked:
+            a, da, dda = self._ramp(tau - start, -1.0)
+            b, db, ddb = self._ramp(tau - end, 1.0)
+            w, dw, ddw = w + a + b, dw + da + db, ddw + dda + ddb
+        return w, dw, ddw
+
+    def _ramp(self, t: float, sign: float) -> tuple[float, float, float]:
+        s, ds, dds = min_jerk(t / self.rise_s)
+        return sign * s, sign * ds / self.rise_s, sign * dds / self.rise_s**2
+
+    def _push(self, k: int) -> float:
+        r = random.Random(f"balancing|{self.seed}|{k}")
+        return self.push * r.uniform(0.7, 1.3) * r.choice((-1.0, 1.0))
+
+    def _balance(self, tau: float) -> tuple[float, float, float]:
+        """theta of the balancing robot (sway, wander, pushes) and its two derivatives."""
+        th = dth = ddth = 0.0
+        for amp, w, ph in (
+            (self.sway, self.sway_w, 0.4),
+            (self.wander, self.wander_w, 1.3 + self.seed),
+        ):
+            th += amp * math.sin(w * tau + ph)
+            dth += amp * w * math.cos(w * tau + ph)
+            ddth -= amp * w * w * math.sin(w * tau + ph)
+        if tau >= self.first_push:
+            k_last = int((tau - self.first_push) // self.push_every)
+            decay = self.zeta * self.push_w
+            wd = self.push_w * math.sqrt(1.0 - self.zeta**2)
+            horizon = 6.0 / max(decay, 1e-3)
+            k = k_last
+            while k >= 0 and tau - (self.first_push + k * self.push_every) <= horizon:
+                t = tau - (self.first_push + k * self.push_every)
+                a = self._push(k) * math.exp(-decay * t)
+                s, c = math.sin(wd * t), math.cos(wd * t)
+                th += a * s
+                dth += a * (wd * c - decay * s)
+                ddth += a * ((decay * decay - wd * wd) * s - 2.0 * decay * wd * c)
+                k -= 1
+        return th, dth, ddth
+
+    def theta(self, tau: float) -> tuple[float, float, float]:
+        """theta (rad) and its first two derivatives at ``tau``."""
+        w, dw, ddw = self._standing(tau)
+        if w <= 0.0 and dw == 0.0:
+            return self.lean, 0.0, 0.0
+        b, db, ddb = self._balance(tau)
+        lean = self.lean
+        return (
+            (1.0 - w) * lean + w * b,
+            dw * (b - lean) + w * db,
+            ddw * (b - lean) + 2.0 * dw * db + w * ddb,
+        )
+
+    def motors_on(self, tau: float) -> bool:
+        """Whether the motors run (the robot is off its stand)."""
+        return self._standing(tau)[0] > 0.0
+
+    def segment(self, tau: float) -> str:
+        """``still`` (on the stand), ``rise`` (getting up or down), ``push`` (a push under
+        way) or ``sway`` (balancing)."""
+        w = self._standing(tau)[0]
+        if w <= 0.0:
+            return "still"
+        if w < 1.0:
+            return "rise"
+        if tau >= self.first_push:
+            k = int((tau - self.first_push) // self.push_every)
+            if tau - (self.first_push + k * self.push_every) < PUSH_WINDOW_S:
+                return "push"
+        return "sway"
+
+    # -- the motion -------------------------------------------------------------------------
+    def motion(self, tau: float) -> Motion:
+        th, dth, ddth = self.theta(tau)
+        w = max(0.0, min(1.0, self._standing(tau)[0]))
+        s, c = math.sin(th), math.cos(th)
+        a_w = w * (G * s - self.pendulum * ddth) / c
+        h = self.sensor
+        return Motion(
+            position=(h * s, 0.0, h * c),
+            velocity=(h * c * dth, 0.0, -h * s * dth),
+            acceleration=(
+                a_w + h * (ddth * c - dth * dth * s),
+                0.0,
+                -h * (ddth * s + dth * dth * c),
+            ),
+            orientation=gm.axis_angle((0.0, 1.0, 0.0), th),
+            angular_rate=(0.0, dth, 0.0),
+        )
+
+    def rest_motion(self) -> Motion:
+        return Motion(
+            position=(self.sensor * math.sin(self.lean), 0.0, self.sensor * math.cos(self.lean)),
+            orientation=gm.axis_angle((0.0, 1.0, 0.0), self.lean),
+        )
+
+
+def _parked(w: Mapping[str, Any]) -> list[list[float]]:
+    value = w.get("parked", [])
+    if not isinstance(value, (list, tuple)) or not all(
+        isinstance(x, (list, tuple)) and len(x) == 2 for x in value
+    ):
+        raise ValueError(f"world 'parked' must be a list of [start, end] (s), got {value!r}")
+    try:
+        return [[float(a), float(b)] for a, b in value]
+    except (TypeError, ValueError):
+        raise ValueError(f"world 'parked' must hold numbers, got {value!r}") from None
+
+
+def _build(w: Mapping[str, Any]) -> Balancing:
+    seed = w.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise ValueError(f"world 'seed' must be an integer, got {seed!r}")
+    first = w.get("first_push_s")
+    sc = Balancing(
+        number(w, "still_s", 8.0),
+        number(w, "lean_deg", 3.0),
+        number(w, "rise_s", 1.0),
+        number(w, "sway_deg", 1.5),
+        number(w, "sway_hz", 1.1),
+        number(w, "wander_deg", 0.8),
+        number(w, "wander_hz", 0.13),
+        None if first is None else number(w, "first_push_s", 0.0),
+        number(w, "push_every_s", 10.0),
+        number(w, "push_deg", 20.0),
+        number(w, "push_hz", 0.8),
+        number(w, "push_damping", 0.25),
+        number(w, "pendulum_m", 0.12),
+        number(w, "sensor_m", 0.18),
+        _parked(w),
+        seed,
+    )
+    return sc
+
+
+register_scenario(
+    "balancing",
+    {
+        "still_s",
+        "lean_deg",
+        "rise_s",
+        "sway_deg",
+        "sway_hz",
+        "wander_deg",
+        "wander_hz",
+        "first_push_s",
+        "push_every_s",
+        "push_deg",
+        "push_hz",
+        "push_damping",
+        "pendulum_m",
+        "sensor_m",
+        "parked",
+    },
+    _build,
+)

@@ -1,0 +1,31 @@
+"""The simulated VL53L1 boards as an application: they check the world they sense.
+
+Registered as ``vl53l1`` in ``hera.apps``; board faults go through the simulator's ``board``
+verb (the boards are in the node's board registry).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from hera.application import Application
+
+
+class Vl53l1Boards(Application):
+    """VL53L1 time-of-flight sensors on a carrier board (seed 001)."""
+
+    name = "vl53l1"
+    title = "simulated VL53L1 time-of-flight sensors on a carrier board (seed 001)"
+    measures = ("vl53l1",)
+
+    def check_world(self, world: Mapping[str, Any]) -> list[str]:
+        """The scenario and its keys must be ones the simulator knows."""
+        from hera.nodes.world import epoch_of, make_scenario
+
+        try:
+            make_scenario(world)
+            epoch_of(world)
+        except ValueError as e:
+            return [str(e)]
+        return []

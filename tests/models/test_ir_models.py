@@ -1,0 +1,513 @@
+"""The seed-000 models offline: simulated boards drive the very model objects the fusion
+measures run, in measurement-time order, over several seeds and worlds (``ir_offline``).
+
+Tracker (lab 2): RMSE <= 0.5 cm on the constant-velocity scenario with the medium + long
+pair; within 1 cm in <= 1 s from the poor initial guess; the short sensor's second spike
+gated, counted and never dragging the estimate by 1 cm (and dragging it without the
+gate); tracking on one sensor while the other is gone; re-acquisition after a loss; the
+seed's Q/R study; biased sensors and dropouts.
+
+Map (lab 3): >= 95 % of the cells right after 60 s of scanning and the hot block within a
+cell once the heat has arrived, over seeds, plate physics and layouts; on the seed's
+ambiguity case (the hot block hidden from the IR) the fused map beats IR alone and thermal
+alone.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from ir_offline import EPOCH, Clock, ir_source, rms, run, tc_sources
+
+from hera.application import EvalOptions, Series
+from hera.models.ir.app import IrApp, hot_error, ir_truth, map_accuracy, plate_maps
+from hera.models.ir.calibration import FITS, sensor_fits
+from hera.models.ir.grid import OccupancyGrid
+from hera.models.ir.measures import IrTrack, OccupancyFused, OccupancyIr, OccupancyThermal
+from hera.models.ir.thermal import ThermalModel, green
+from hera.models.ir.tiles import COLUMNS, HEADER, TILE, assemble, split
+from hera.models.ir.tracker import IrTracker
+from hera.store import Sample
+from hera.wire import decode, encode
+
+MEDIUM, LONG, SHORT = "GP2Y0A21YK0F", "GP2Y0A02YK0F", "GP2Y0A41SK0F"
+PAIR = (("ir_medium", MEDIUM), ("ir_long", LONG))
+APP = IrApp()
+SEEDS = range(6)
+
+
+def track(world, seed, models, duration=40.0, parts=PAIR, board_model=None, skip=None):
+    """An offline tracking run; returns {model name: scores of the application}."""
+    world = {**world, "seed": seed, "epoch": EPOCH}
+    clock = Clock()
+    sources = [
+        ir_source(
+            world,
+            clock,
+            name,
+            part,
+            seed,
+            phase=0.007 * i,
+            model=(board_model or {}).get(name),
+            skip=(skip or {}).get(name, lambda tau: False),
+        )
+        for i, (name, part) in enumerate(parts)
+    ]
+    out = run(world, sources, models, clock, duration, seed=seed)
+    truth = ir_truth(world)
+    scores = {}
+    for name in models:
+        t, v = out.series(name)
+        s = Series(name, "offline", IrTracker.columns, t, v, IrTrack)
+        scores[name] = {**APP.score(s, truth, EvalOptions()), "series": s}
+    return out, scores
+
+
+def errors(series: Series, world, seed):
+    truth = ir_truth({**world, "seed": seed, "epoch": EPOCH})
+    return series.column("distance [cm]") - np.array(
+        [truth.at(t)["distance [cm]"] for t in series.t]
+    )
+
+
+# -- calibration -------------------------------------------------------------------------
+
+
+def test_the_models_fits_are_the_seeds_lab_1_curves():
+    for part, ((d0, v0), (d1, v1)) in {
+        SHORT: ((4.0, 2.34), (30.0, 0.34)),
+        MEDIUM: ((10.0, 1.99), (80.0, 0.14)),
+        LONG: ((20.0, 2.50), (150.0, 0.40)),
+    }.items():
+        law = FITS[part]
+        assert law.volts(d0) == pytest.approx(v0, abs=0.01)
+        assert law.volts(d1) == pytest.approx(v1, abs=0.01)
+        assert law.distance(law.volts(33.0)) == pytest.approx(33.0)
+    assert FITS[LONG].slope(50.0) == pytest.approx(-29.088 * 50.0**-1.873, rel=0.05)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "words"),
+    [
+        ({"sensors": {"a": "GP2Y0A99"}}, ["GP2Y0A99", "known"]),
+        ({"sensors": {"a": MEDIUM}, "r": {"b": 0.1}}, ["r names ['b']", "not sensors"]),
+        ({"sensors": {"a": MEDIUM}, "r": {"a": 0}}, ["r['a']", "> 0"]),
+        ({"sensors": {"a": MEDIUM}, "fits": {"a": [1, 2]}}, ["[a, b, c]"]),
+        ({"sensors": {"a": MEDIUM}, "fits": {"a": [1.0, 0.5, 0.0]}}, ["b < 0"]),
+    ],
+)
+def test_bad_sensor_settings_are_refused_naming_them(kwargs, words):
+    with pytest.raises(ValueError) as e:
+        sensor_fits(kwargs["sensors"], kwargs.get("fits"), kwargs.get("r"))
+    for w in words:
+        assert w in str(e.value)
+
+
+@pytest.mark.parametrize(
+    ("settings", "word"),
+    [
+        ({"q": [1.0]}, "q"),
+        ({"p0": [0, 1]}, "p0"),
+        ({"gate": 1.5}, "gate"),
+        ({"lost_window": 1}, "lost_window"),
+    ],
+)
+def test_bad_tracker_settings_are_refused_through_the_measure(settings, word):
+    with pytest.raises(ValueError, match=word):
+        IrTrack.make_model(settings)
+    # and before any node starts: the spec check builds the model
+    (problem,) = IrTrack.check_args({"model": settings}, "spec.toml: measure 'ir_track'")
+    assert problem.startswith("spec.toml: measure 'ir_track': model: ") and word in problem
+    with pytest.raises(ValueError, match="unknown setting 'speed'"):
+        IrTrack.make_model({"speed": 1})
+
+
+# -- tracker -----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "world",
+    [
+        {"scenario": "ir_constant_velocity"},  # 20-60 cm at 2 cm/s, 2 s turns
+        {"scenario": "ir_constant_velocity", "near_cm": 25.0, "far_cm": 75.0, "speed_cm_s": 1.0},
+        {"scenario": "ir_constant_velocity", "speed_cm_s": 3.0, "turn_s": 3.0},
+        {"scenario": "ir_constant_velocity", "turn_s": 1.0},
+    ],
+)
+def test_constant_velocity_rmse_is_under_half_a_cm_with_the_medium_long_pair(world):
+    """Issue 13: RMSE <= 0.5 cm over a 30 s run; measured 0.17-0.41 cm over these seeds
+    and worlds (the error grows with the distance, as the sensors' slope flattens)."""
+    worst = 0.0
+    for seed in range(4):
+        _, scores = track(world, seed, {"ekf": IrTracker()}, duration=30.0)
+        worst = max(worst, scores["ekf"]["rmse_cm"])
+    assert worst <= 0.45, worst  # 0.5 with a margin
+
+
+def test_from_the_poor_initial_guess_within_a_cm_in_a_second():
+    """Seed scenario 4 (start at 50 cm, target at 70): the error is within 1 cm, and its RMS
+    over the next second too, after <= 1 s (measured 0.07-0.25 s)."""
+    for seed in SEEDS:
+        _, scores = track(
+            {"scenario": "ir_stationary", "distance_cm": 70.0},
+            seed,
+            {"ekf": IrTracker(x0=[50.0, 0.0])},
+            duration=10.0,
+        )
+        s = scores["ekf"]
+        assert abs(s["series"].column("distance [cm]")[0] - 70.0) > 2.0  # it starts off
+        assert s["converge_s"] is not None and s["converge_s"] <= 1.0, (seed, s["converge_s"])
+        assert s["rmse_cm"] <= 0.6, (seed, s["rmse_cm"])
+
+
+TRIO = (*PAIR, ("ir_short", SHORT))
+WITH_SHORT = {"ir_medium": MEDIUM, "ir_long": LONG, "ir_short": SHORT}
+
+
+@pytest.mark.parametrize(
+    "world",
+    [
+        {"scenario": "ir_stationary", "distance_cm": 24.0},
+        {"scenario": "ir_constant_velocity", "near_cm": 20.0, "far_cm": 30.0, "speed_cm_s": 1.0},
+    ],
+)
+def test_the_short_sensors_second_spike_is_gated_counted_and_harmless(world):
+    """The short sensor sits on its second spike for ~20 % of its readings (seed lab 1):
+    the gate rejects about that many (counted: the ``gated`` column and the model's
+    counters), and the estimate with the short sensor stays within 1 cm of the truth."""
+    for seed in range(3):
+        out, scores = track(world, seed, {"ekf": IrTracker(sensors=WITH_SHORT)}, 30.0, TRIO)
+        c = out.models["ekf"].counters()
+        short = c["ir_short_used"] + c["ir_short_gated"]
+        assert 0.15 * short <= c["ir_short_gated"] <= 0.3 * short, c
+        assert scores["ekf"]["gated"] >= c["ir_short_gated"]
+        assert scores["ekf"]["max_err_cm"] <= 1.0, scores["ekf"]["max_err_cm"]
+
+
+def test_without_the_gate_the_second_spike_drags_the_estimate():
+    """The check above can fail: with the long and short sensors at 24 cm (the short one's
+    weight is then large), no gate lets the spikes pull the estimate over 1 cm off."""
+    sensors = {"ir_long": LONG, "ir_short": SHORT}
+    parts = (("ir_long", LONG), ("ir_short", SHORT))
+    for seed in range(3):
+        _, scores = track(
+            {"scenario": "ir_stationary", "distance_cm": 24.0},
+            seed,
+            {"gated": IrTracker(sensors=sensors), "open": IrTracker(sensors=sensors, gate=0.0)},
+            30.0,
+            parts,
+        )
+        assert scores["gated"]["max_err_cm"] <= 1.0
+        assert scores["open"]["max_err_cm"] > 1.5 and scores["open"]["gated"] == 0
+
+
+@pytest.mark.parametrize("gone", ["ir_long", "ir_medium"])
+def test_tracking_goes_on_with_one_sensor_and_recovers(gone):
+    """One board silent from 12 s to 24 s: the estimates go on from the other sensor
+    (every 20 ms), and the error is back to its fault-free level once both report."""
+    world = {"scenario": "ir_constant_velocity"}
+    for seed in range(3):
+        out, scores = track(
+            world, seed, {"ekf": IrTracker()}, skip={gone: lambda tau: 12 <= tau < 24}
+        )
+        s = scores["ekf"]["series"]
+        tau = s.t - EPOCH
+        err = errors(s, world, seed)
+        during, after = (tau >= 12) & (tau < 24), tau >= 27
+        assert np.max(np.diff(tau[during])) < 0.05  # no gap in the estimates
+        assert rms(err[during]) <= 1.5 and np.max(np.abs(err[during])) <= 4.0
+        assert rms(err[after]) <= 0.5
+        used = out.models["ekf"].counters()[f"{gone}_used"]
+        assert used > 0.95 * 50 * (40 - 12)  # it is fused again after it came back
+
+
+def test_a_lost_filter_reacquires():
+    """Random back-and-forth moves faster than the seed's Q expects: readings start being
+    gated out. Re-acquisition (P widened when half of the last 20 are gated) keeps the
+    error bounded; without it (a window too long to fill) the filter coasts far off."""
+    world = {"scenario": "ir_back_and_forth"}
+    with_it, without = [], []
+    for seed in range(3):
+        out, scores = track(
+            world, seed, {"ekf": IrTracker(), "never": IrTracker(lost_window=10**9)}, 30.0
+        )
+        with_it.append(scores["ekf"]["max_err_cm"])
+        without.append(scores["never"]["max_err_cm"])
+    assert max(with_it) <= 10.0, with_it
+    assert max(without) > 1.3 * max(with_it), (with_it, without)
+
+
+def test_the_seeds_q_r_study():
+    """Seed lab 2: a 150x larger R smooths but lags (scenario 2); a 300x larger Q follows
+    the sensors with little lag but jitters (scenario 3)."""
+
+    def models():
+        return {
+            "good": IrTracker(),
+            "high_r": IrTracker(r={"ir_medium": 0.1, "ir_long": 0.09}),
+            "high_q": IrTracker(q=[0.6, 0.85]),
+        }
+
+    lags, jitter = {}, {}
+    for seed in range(3):
+        _, scores = track({"scenario": "ir_back_and_forth"}, seed, models(), 30.0)
+        for k, v in scores.items():
+            lags.setdefault(k, []).append(v["lag_s"])
+        _, still = track({"scenario": "ir_stationary", "distance_cm": 40.0}, seed, models(), 10.0)
+        for k, v in still.items():
+            d = v["series"].column("distance [cm]")
+            jitter.setdefault(k, []).append(float(np.std(np.diff(d))))
+    mean = {k: float(np.mean(v)) for k, v in lags.items()}
+    assert mean["high_r"] > mean["good"] + 0.3 and mean["high_q"] < mean["good"], mean
+    shake = {k: float(np.mean(v)) for k, v in jitter.items()}
+    assert shake["high_q"] > 1.5 * shake["good"] > 1.5 * shake["high_r"], shake
+
+
+def test_biased_sensors_and_dropouts_degrade_gracefully():
+    """A biased, mis-scaled long sensor (30 mV, 3 %) barely matters (the medium one carries
+    the fix); 30 % of both sensors' readings lost still tracks within 0.7 cm RMS; a 10 mV
+    offset on the medium sensor, which the fit trusts, costs about a centimetre (a real
+    unit needs its own lab-1 fit: the ``fits`` setting)."""
+    world = {"scenario": "ir_constant_velocity"}
+    for seed in range(3):
+        _, a = track(
+            world,
+            seed,
+            {"ekf": IrTracker()},
+            board_model={"ir_long": {"offset_v": 0.03, "gain": 1.03}},
+        )
+        assert a["ekf"]["rmse_cm"] <= 0.5
+        lost = set(np.nonzero(np.random.default_rng(seed).random(4000) < 0.3)[0].tolist())
+        drop = {
+            n: (lambda tau, lost=lost: round(tau * 50) in lost) for n in ("ir_medium", "ir_long")
+        }
+        _, b = track(world, seed, {"ekf": IrTracker()}, skip=drop)
+        assert b["ekf"]["rmse_cm"] <= 0.7
+        _, c = track(
+            world, seed, {"ekf": IrTracker()}, board_model={"ir_medium": {"offset_v": 0.01}}
+        )
+        assert c["ekf"]["rmse_cm"] <= 1.5
+
+
+def test_a_sensor_out_of_its_range_is_not_used():
+    """At 15 cm the long sensor (20-150 cm) is on the folded part of its curve: skipped."""
+    out, scores = track(
+        {"scenario": "ir_stationary", "distance_cm": 15.0}, 0, {"ekf": IrTracker()}, 10.0
+    )
+    c = out.models["ekf"].counters()
+    assert c["ir_long_used"] == 0 and c["ir_long_out_of_range"] + c["saturated"] >= 450
+    assert scores["ekf"]["max_err_cm"] <= 0.5
+
+
+# -- the map -----------------------------------------------------------------------------
+
+HIDDEN = {
+    "scenario": "ir_plate",
+    "blocks": [
+        {"x": 4, "y": 7, "w": 2, "h": 2, "hot": True},  # bottom centre, hidden from both scanners
+        {"x": 2, "y": 7, "w": 1, "h": 2},  # by this block from the left
+        {"x": 4, "y": 5, "w": 2, "h": 1},  # and this one from the top
+    ],
+}
+
+
+def plate(world, seed, duration, models=None):
+    world = {**world, "seed": seed, "epoch": EPOCH}
+    clock = Clock()
+    sources = [
+        ir_source(world, clock, "ir_left", SHORT, seed, scanner="left"),
+        ir_source(world, clock, "ir_top", SHORT, seed, scanner="top", phase=0.005),
+        *tc_sources(world, clock, seed),
+    ]
+    models = models or {
+        "fused": OccupancyFused.make_model({}),
+        "ir": OccupancyIr.make_model({}),
+        "thermal": OccupancyThermal.make_model({}),
+    }
+    out = run(world, sources, models, clock, duration, seed=seed)
+    truth = ir_truth(world)
+    series = {}
+    for name in models:
+        t, v = out.series(name)
+        series[name] = Series(name, "offline", COLUMNS, t, v, OccupancyFused)
+    return truth, series
+
+
+def at(series: Series, seconds: float):
+    """The map made ``seconds`` after the first one."""
+    maps = plate_maps(series)
+    return [m for m in maps if m[0] - maps[0][0] <= seconds + 1e-6][-1]
+
+
+def accuracy(truth, m) -> float:
+    _, grid, _, cell = m
+    return map_accuracy(grid, truth.occupancy(*grid.shape, cell))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_map_is_95_percent_right_after_60_s_and_finds_the_hot_block(seed):
+    """Default plate, the hot block put down at the start: >= 95 % of the cells right at
+    60 s (measured 98-99 %); no hot block named until the heat reaches the thermocouples
+    (found after 16-20 s), and from then on within one cell in every map (measured: at
+    most 0.27 cm off)."""
+    truth, s = plate({"scenario": "ir_plate"}, seed, 150.0)
+    assert accuracy(truth, at(s["fused"], 60.0)) >= 0.95
+    scores = APP.score(s["fused"], truth, EvalOptions())
+    assert scores["hot_found_s"] is not None and 5.0 <= scores["hot_found_s"] <= 60.0
+    maps = plate_maps(s["fused"])
+    errs = [hot_error(m[2], truth) for m in maps if m[2][2] > 0]
+    assert len(errs) >= len(maps) - 61 and max(errs) <= 1.0, max(errs)
+
+
+@pytest.mark.parametrize(
+    "world",
+    [
+        {"scenario": "ir_plate", "loss_time_s": 75.0},
+        {"scenario": "ir_plate", "loss_time_s": 300.0},
+        {"scenario": "ir_plate", "alpha_cm2_s": 0.15},
+        {"scenario": "ir_plate", "alpha_cm2_s": 0.6},
+        {
+            "scenario": "ir_plate",
+            "blocks": [
+                {"x": 1, "y": 1, "w": 2, "h": 2, "hot": True},
+                {"x": 5, "y": 4, "w": 1, "h": 2},
+            ],
+        },
+        {
+            "scenario": "ir_plate",
+            "blocks": [
+                {"x": 7, "y": 1, "w": 2, "h": 2, "hot": True},
+                {"x": 3, "y": 4, "w": 1, "h": 2},
+            ],
+        },
+        {
+            "scenario": "ir_plate",
+            "blocks": [
+                {"x": 1, "y": 7, "w": 2, "h": 2, "hot": True},
+                {"x": 5, "y": 2, "w": 1, "h": 2},
+            ],
+        },
+        {"scenario": "ir_plate", "hot_since_s": 300.0},
+    ],
+)
+def test_the_map_holds_across_plate_physics_and_layouts(world):
+    """The thermal model knows none of the simulator's constants (its kernel is a 1 mm
+    aluminium plate's fin length): half and double the heat loss and diffusivity, other
+    layouts, a plate already warm at the start (no offset calibration possible)."""
+    warm = bool(world.get("hot_since_s"))
+    for seed in (0, 1):
+        models = {"fused": OccupancyFused.make_model({"baseline_s": 0.0})} if warm else None
+        truth, s = plate(world, seed, 30.0 if warm else 120.0, models)
+        scores = APP.score(s["fused"], truth, EvalOptions())
+        assert scores["map_pct"] >= 95.0, scores
+        assert scores["hot_err_cm"] is not None and scores["hot_err_cm"] <= 1.0, scores
+
+
+def test_on_the_seeds_ambiguity_case_the_fused_map_beats_each_alone():
+    """Seed lab 3, "heat source at bottom centre": the hot block sits between the two bottom
+    thermocouples, and here two cold blocks hide it from both IR scanners. IR alone leaves
+    its cells unknown and cannot say which block is hot; thermal alone knows nothing of
+    the cold blocks or the free cells; fused, the IR's free space and the heat together map
+    the plate and put the hot block where no IR could see it."""
+    fused_errs, thermal_errs = [], []
+    for seed in range(4):
+        truth, s = plate(HIDDEN, seed, 150.0)
+        fused, ir, thermal = (at(s[k], 140.0) for k in ("fused", "ir", "thermal"))
+        acc = {
+            k: accuracy(truth, m) for k, m in (("fused", fused), ("ir", ir), ("thermal", thermal))
+        }
+        assert acc["fused"] >= 0.98 and acc["fused"] >= acc["ir"] + 0.02 > acc["thermal"], acc
+        hidden = fused[1][7:9, 4:6]  # the hidden block's cells: heat says occupied
+        assert (hidden > 0).all() and (hidden > 0.4).sum() >= 2, hidden
+        assert (ir[1][7:9, 4:6] == 0).all()  # IR alone: unknown
+        assert ir[2][2] == 0.0  # IR alone: no hot block
+        fused_errs.append(hot_error(fused[2], truth))
+        thermal_errs.append(hot_error(thermal[2], truth))
+    assert max(fused_errs) <= 1.0, fused_errs  # within one cell, where no IR saw it
+    assert np.mean(fused_errs) < np.mean(thermal_errs), (fused_errs, thermal_errs)
+
+
+def test_the_ir_inverse_model_frees_up_to_the_surface_and_marks_it():
+    grid = OccupancyGrid(use="ir", ir={"ir_left": SHORT})
+    law = grid.laws["ir_left"]
+    for k in range(10):  # one fixed sensor at y = 4.5, looking along +x at 11 cm (x = 6)
+        t = 100.0 + 0.02 * k
+        grid.process(Sample("ir_left", "n", k + 1, t, 0.0, t, (law.volts(11.0), -5.0, 4.5, 0.0)))
+    grid.process(Sample("ir_left", "n", 99, 102.5, 0.0, 102.5, (law.volts(11.0), -5.0, 4.5, 0.0)))
+    row = grid.logodds()[4]
+    assert (row[:6] < 0).all() and row[6] > 0 and (row[7:] == 0).all()
+    assert (np.delete(grid.logodds(), 4, axis=0) == 0).all()
+
+
+def test_a_long_silence_makes_one_map_not_one_per_second():
+    grid = OccupancyGrid(use="ir", ir={"ir_left": SHORT})
+    v = grid.laws["ir_left"].volts(11.0)
+    grid.process(Sample("ir_left", "n", 1, 100.0, 0.0, 100.0, (v, -5.0, 4.5, 0.0)))
+    grid.process(Sample("ir_left", "n", 2, 100.5, 0.0, 100.5, (v, -5.0, 4.5, 0.0)))
+    grid.process(Sample("ir_left", "n", 3, 3700.2, 0.0, 3700.2, (v, -5.0, 4.5, 0.0)))
+    rows = grid.outputs()
+    assert len(rows) == 2 and [t for t, _ in rows] == [101.0, 3700.0]
+    assert grid.counters()["skipped"] == 3599
+    assert not grid.process(Sample("ir_left", "n", 4, 3000.0, 0.0, 3000.0, (v, -5.0, 4.5, 0.0)))
+    assert grid.counters()["late"] == 1
+
+
+def test_the_thermal_posterior_finds_a_source_and_waits_for_heat():
+    ys, xs = np.mgrid[0:10, 0:10]
+    cells = np.column_stack(((xs.ravel() + 0.5), (ys.ravel() + 0.5)))
+    sensors = [(0.5, 0.5), (9.5, 0.5), (0.5, 9.5), (9.5, 9.5), (5.0, 5.0)]
+    g = green(np.array(sensors), cells, 10.0, 10.0, 6.0)
+    assert np.allclose(
+        green(cells[:5], cells[:5], 10, 10, 6), green(cells[:5], cells[:5], 10, 10, 6).T
+    )
+    model = ThermalModel(cells, sensors, 10.0, 10.0)
+    for k in (12, 37, 88):
+        post = model.posterior(21.0 + 5.0 * g[:, k] / np.ptp(g[:, k]))  # a 5 degC spread
+        assert int(np.argmax(post)) == k
+    assert model.posterior([21.0, 21.2, 21.1, 21.0, 21.3]) is None  # no heat yet
+
+
+@pytest.mark.parametrize(
+    ("size", "cell", "tiles"), [((10, 10), 1.0, 1), ((10, 10), 0.5, 2), ((33, 17), 1.0, 3)]
+)
+def test_maps_travel_in_tiles_of_at_most_256_values(size, cell, tiles):
+    rng = np.random.default_rng(1)
+    cols, rows = round(size[0] / cell), round(size[1] / cell)
+    grid = np.round(rng.normal(0, 3, (rows, cols)), 3)
+    out = split(grid, cell, (1.0, 2.0, 0.5))
+    assert len(out) == tiles and all(len(r) == len(HEADER) + TILE == 256 for r in out)
+    for r in out:
+        assert decode(encode(1, 1.0, r)).values == pytest.approx(r)
+    ((t, back, hot, c),) = assemble([5.0] * len(out), out)
+    assert np.array_equal(back, grid) and hot == (1.0, 2.0, 0.5) and c == cell
+    assert assemble([5.0], out[:1]) == [] if tiles > 1 else True
+
+
+def test_a_large_map_comes_out_as_every_tile_of_every_epoch():
+    """A 20 x 20 map (0.5 cm cells): two tiles per mapping epoch, in order, through the
+    model's ``outputs()``; put back together they are the model's map."""
+    model = OccupancyFused.make_model({"cell_cm": 0.5})
+    truth, s = plate({"scenario": "ir_plate"}, 0, 20.0, {"fused": model})
+    rows = s["fused"].values
+    assert {int(r[1]) for r in rows} == {2} and [int(r[0]) for r in rows[:4]] == [0, 1, 0, 1]
+    maps = plate_maps(s["fused"])
+    assert len(maps) == len(rows) // 2 and maps[-1][1].shape == (20, 20)
+    assert np.allclose(maps[-1][1], np.round(model.logodds(), 3))
+
+
+@pytest.mark.parametrize(
+    ("settings", "word"),
+    [
+        ({"use": "sonar"}, "use"),
+        ({"thermal": ["tc1"]}, "thermal"),
+        ({"size_cm": [10, -1]}, "size_cm"),
+        ({"p_occ": 1.0}, "p_occ"),
+        ({"ir": {"ir_left": "GP2Y0A99"}}, "GP2Y0A99"),
+    ],
+)
+def test_bad_map_settings_are_refused(settings, word):
+    with pytest.raises(ValueError, match=word):
+        OccupancyGrid(**settings)
+    if "use" not in settings:  # use is fixed by each measure
+        (problem,) = OccupancyFused.check_args({"model": settings}, "spec")
+        assert word in problem

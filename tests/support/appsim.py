@@ -1,0 +1,275 @@
+"""Offline runs of the seed-001/003 applications: the simulated boards read on a fake clock,
+their samples fed in time order to the very model objects the fusion measures run, scored by
+the applications. Many seeds and worlds in seconds, no cluster.
+
+``python tests/support/appsim.py tof|tilt [SEEDS]`` prints the multi-seed tables quoted in
+the README.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hera.application import EvalOptions, Series
+from hera.store import Sample
+
+SENSORS = ("left", "centre", "right")
+MOUNTS = {"left": (-0.03, -0.02), "centre": (0.0, 0.0), "right": (0.03, -0.02)}
+
+
+@dataclass
+class Fault:
+    """Switch ``kind`` on the board of ``sensor`` at ``at`` s after the epoch."""
+
+    sensor: str
+    at: float
+    kind: str = "stuck"
+    params: Mapping[str, Any] | None = None
+
+
+def _sample(name: str, node: str, seq: int, t: float, values: Sequence[float]) -> Sample:
+    return Sample(name, node, seq, t, 0.0, 0.0, tuple(float(v) for v in values))
+
+
+def tof_boards(
+    world: Mapping[str, Any], seed: int = 1, model: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
+    """The three simulated sensors of :func:`tof_samples` (by sensor name), on a clock that
+    stays at 0 until set through ``board.clock_cell[0]``."""
+    from hera.nodes.noise import stable_seed
+    from hera.nodes.tof.model import TofModel
+    from hera.nodes.tof.sim import SimVl53l1
+    from hera.nodes.world import make_scenario
+
+    scenario = make_scenario(world)
+    cell = [0.0]
+    out = {}
+    for s in SENSORS:
+        out[s] = SimVl53l1(
+            f"tof_{s}/tof",
+            scenario,
+            0.0,
+            TofModel.from_args(model),
+            MOUNTS[s],
+            stable_seed("vl53l1", f"tof_{s}", "tof", seed),
+            clock=lambda: cell[0],
+        )
+        out[s].clock_cell = cell
+    return out
+
+
+def tof_samples(
+    world: Mapping[str, Any],
+    duration: float,
+    seed: int = 1,
+    faults: Sequence[Fault] = (),
+    model: Mapping[str, Any] | None = None,
+) -> list[tuple[float, Sample]]:
+    """(time available to a fusion node, sample) of three ``vl53l1`` sensors on nodes
+    ``tof_<sensor>`` at 10 Hz with random phases, in availability order."""
+    boards = tof_boards(world, seed, model)
+    clock = boards[SENSORS[0]].clock_cell
+    rng = np.random.default_rng(seed)
+    phase = {s: float(rng.uniform(0.0, 0.1)) for s in SENSORS}
+    events = sorted(faults, key=lambda f: f.at)
+    out = []
+    for s in SENSORS:
+        seq, t = 0, phase[s] + 0.3
+        while t < duration:
+            clock[0] = t
+            for f in events:
+                if f.sensor == s and f.at <= t and not getattr(f, f"_on_{s}", False):
+                    boards[s].faults.set(f.kind, **dict(f.params or {}))
+                    setattr(f, f"_on_{s}", True)
+            try:
+                r = boards[s].read_ranging()
+            except OSError:
+                t += 0.1
+                continue
+            seq += 1
+            sample = _sample("vl53l1", f"tof_{s}", seq, r.t, (*r.values(), *MOUNTS[s]))
+            out.append((t + 0.002, sample))  # published when read, then the transit
+            t += 0.1 + float(rng.normal(0.0, 0.0005))
+    out.sort(key=lambda x: (x[0], x[1].node))
+    return out
+
+
+def run_model(
+    model: Any,
+    feed: Sequence[tuple[float, Sample]],
+    forecast_hz: float | None = 100.0,
+    duration: float | None = None,
+) -> Series:
+    """Feed ``model`` in availability order; the output series is the model's forecast at
+    each step of ``forecast_hz`` (as a forecasting measure publishes) or, without it, the
+    estimate after each changed step."""
+    ts, rows = [], []
+    if forecast_hz is None:
+        for _, s in feed:
+            if model.process(s):
+                est = model.estimate()
+                if est is not None:
+                    ts.append(est[0])
+                    rows.append(est[1])
+    else:
+        end = duration if duration is not None else feed[-1][0]
+        step, i = 1.0 / forecast_hz, 0
+        for k in range(int(end / step)):
+            now = k * step
+            while i < len(feed) and feed[i][0] <= now:
+                model.process(feed[i][1])
+                i += 1
+            est = model.forecast(now)
+            if est is not None and (not ts or est[0] > ts[-1]):
+                ts.append(est[0])
+                rows.append(est[1])
+    return Series("model", "sim", tuple(model.columns), ts, rows)
+
+
+def tof_scores(
+    kinds: Sequence[str],
+    world: Mapping[str, Any],
+    duration: float,
+    seed: int,
+    faults: Sequence[Fault] = (),
+    settings: Mapping[str, Mapping[str, Any]] | None = None,
+    board: Mapping[str, Any] | None = None,
+    after: float = 1.0,
+) -> dict[str, dict[str, float | None]]:
+    """The ToF app's scores of each kind over one offline run."""
+    from hera.models.tof.app import desk_truth, score_height
+    from hera.models.tof.height import TofHeight
+
+    feed = tof_samples(world, duration, seed, faults, board)
+    truth = desk_truth(world)
+    out = {}
+    for kind in kinds:
+        model = TofHeight(kind=kind, **dict((settings or {}).get(kind, {})))
+        series = run_model(model, feed, duration=duration)
+        out[kind] = score_height(series, truth, EvalOptions(after=after))
+        out[kind]["counters"] = model.counters()  # type: ignore[assignment]
+        out[kind]["series"] = series  # type: ignore[assignment]
+    return out
+
+
+def imu_samples(
+    world: Mapping[str, Any],
+    duration: float,
+    seed: int = 1,
+    odr: float = 26.0,
+    model: Mapping[str, Any] | None = None,
+    calibrate_at: float | None = 0.0,
+    calib: Callable[..., Any] | None = None,
+) -> tuple[list[Sample], Any]:
+    """The samples an ``lsm6dsl`` measure publishes (its calibration included: from
+    ``calibrate_at`` s, 100 still samples) and the board."""
+    from hera.nodes.lsm6dsl.calibration import GyroCalibration
+    from hera.nodes.lsm6dsl.model import ImuModel
+    from hera.nodes.lsm6dsl.sim import SimLsm6dsl
+    from hera.nodes.noise import stable_seed
+    from hera.nodes.world import G, make_scenario
+
+    clock = [0.0]
+    board = SimLsm6dsl(
+        "robot/imu",
+        make_scenario(world),
+        0.0,
+        ImuModel.from_args(model),
+        stable_seed("lsm6dsl", "robot", "imu", seed),
+        odr_hz=odr,
+        clock=lambda: clock[0],
+    )
+    out = []
+    cal = None
+    bias, state = 0.0, 0.0
+    t, seq = 0.5 + (seed % 7) * 0.003, 0
+    while t < duration:
+        clock[0] = t
+        r = board.read_imu()
+        if calibrate_at is not None and cal is None and t >= calibrate_at and state == 0.0:
+            cal = GyroCalibration(100)
+            state = 1.0
+        if cal is not None and cal.feed(r.acc, r.gyro):
+            bias, state, cal = math.radians(cal.result[1]), 2.0, None
+        seq += 1
+        out.append(
+            _sample(
+                "imu",
+                "robot",
+                seq,
+                r.t,
+                (-r.acc[0] * G, r.acc[2] * G, math.radians(r.gyro[1]), bias, state),
+            )
+        )
+        t += 1.0 / odr
+    return out, board
+
+
+def main(argv: Sequence[str]) -> int:
+    what = argv[0] if argv else "tof"
+    seeds = range(int(argv[1]) if len(argv) > 1 else 5)
+    if what == "tof":
+        kinds = ("cv", "ca", "fused", "plane")
+        head = ("seed", "kind", "rmse", "still", "settle", "fast", "lag", "max", "tilt")
+        print(" ".join(f"{h:>7}" for h in head))
+        for seed in seeds:
+            res = tof_scores(kinds, {"scenario": "desk", "seed": seed}, 75.0, seed)
+            for k in kinds:
+                r = res[k]
+                cells = [r[x] for x in ("rmse_mm", "still_mm", "settle_mm", "fast_mm", "lag_ms")]
+                cells += [r["max_mm"], r.get("tilt_deg") or float("nan")]
+                print(f"{seed:>7} {k:>7} " + " ".join(f"{c:7.2f}" for c in cells))
+    elif what == "stuck":
+        from hera.models.tof.app import desk_truth, score_height
+        from hera.models.tof.height import TofHeight
+
+        for seed in seeds:
+            for sensor, kind in (("left", "stuck"), ("centre", "stuck"), ("right", "dropout")):
+                world = {"scenario": "desk", "seed": seed}
+                feed = tof_samples(world, 75.0, seed, [Fault(sensor, 20.0, kind)])
+                s = run_model(TofHeight(kind="plane"), feed, duration=75.0)
+                bit = {"left": 1, "centre": 2, "right": 4}[sensor]
+                mask = s.column("faulty [mask]").astype(int)
+                hit = np.nonzero((s.t >= 20.0) & (mask & bit > 0))[0]
+                keep = s.t >= 20.0
+                late = Series("m", "n", s.columns, s.t[keep], s.values[keep])
+                r = score_height(late, desk_truth(world), EvalOptions(after=0.0))
+                print(
+                    f"seed {seed} {sensor:>6} {kind:>7}: reported after "
+                    f"{s.t[hit[0]] - 20.0:.2f} s, RMSE after {r['rmse_mm']:.2f} mm"
+                )
+    elif what in ("tilt", "drift"):
+        from hera.models.tilt.app import robot_truth, score_tilt
+        from hera.models.tilt.tilt import Tilt2D
+
+        drift = {"gyro_ramp_dps_s": 0.5 / 60.0, "ramp_start_s": 12.0, "ramp_s": 60.0}
+        keys = ("converge_s", "still_deg", "rmse_deg", "push_deg", "max_deg", "final_deg")
+        print(f"{'seed':>4} {'filter':>6} " + " ".join(f"{k:>10}" for k in keys))
+        for seed in seeds:
+            world = {"scenario": "balancing", "seed": seed}
+            samples, _ = imu_samples(
+                world,
+                80.0 if what == "drift" else 60.0,
+                seed,
+                model=drift if what == "drift" else None,
+            )
+            stream = [(x.t, x) for x in samples]
+            for kind in ("split", "ekf", "ukf", "bias"):
+                after = 0.0 if what == "drift" else 3.0
+                r = score_tilt(
+                    run_model(Tilt2D(kind=kind), stream, None),
+                    robot_truth(world),
+                    EvalOptions(after=after),
+                )
+                print(f"{seed:>4} {kind:>6} " + " ".join(f"{r[k]:10.3f}" for k in keys))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

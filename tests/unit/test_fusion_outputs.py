@@ -1,0 +1,84 @@
+"""Models that make several rows at a time (a map in tiles): ``outputs()`` rows are published
+one per fusion-measure step, in order, and ``hera replay`` writes every one of them."""
+
+from __future__ import annotations
+
+from nodes_helpers import make_ctx
+
+from hera.fusion import FusionMeasure, model_outputs
+from hera.recordings import CsvWriter, read_csv
+from hera.replay import replay
+from hera.wire import Message
+
+
+class Pairs:
+    """Each sample of ``a`` makes two rows: (value, 0) and (value, 1) at its time."""
+
+    inputs = ("a",)
+    columns = ("value", "part")
+
+    def __init__(self) -> None:
+        self._rows: list[tuple[float, list[float]]] = []
+
+    def process(self, sample) -> bool:
+        self._rows += [(sample.t, [sample.values[0], 0.0]), (sample.t, [sample.values[0], 1.0])]
+        return True
+
+    def estimate(self):
+        raise AssertionError("a model with outputs() is never asked for estimate()")
+
+    def outputs(self):
+        out, self._rows = self._rows, []
+        return out
+
+
+class PairsMeasure(FusionMeasure):
+    name = "pairs"
+    model_class = Pairs
+    columns = Pairs.columns
+
+
+class Plain:
+    inputs = ("a",)
+    columns = ("value",)
+
+    def process(self, sample) -> bool:
+        self.last = (sample.t, [sample.values[0]])
+        return True
+
+    def estimate(self):
+        return self.last
+
+
+def test_a_model_without_outputs_is_read_through_estimate():
+    assert model_outputs(Plain()) is None
+    m = Pairs()
+    assert model_outputs(m) == []
+
+
+def test_rows_are_published_one_per_step_in_order():
+    ctx = make_ctx("pairs", period=0.01)
+    m = PairsMeasure()
+    m.init({"mode": "arrival", "reorder_s": 0.0}, ctx)
+    for seq, (t, v) in enumerate(((10.0, 1.5), (10.1, 2.5)), start=1):
+        ctx.store.offer("a", "n2", Message(seq, t, (v,)))
+    got = [m.measure() for _ in range(5)]
+    assert [(r.t, list(r.values)) for r in got[:4]] == [
+        (10.0, [1.5, 0.0]),
+        (10.0, [1.5, 1.0]),
+        (10.1, [2.5, 0.0]),
+        (10.1, [2.5, 1.0]),
+    ]
+    assert got[4] is None
+    m.close()
+
+
+def test_replay_writes_every_row(tmp_path):
+    rec = CsvWriter(tmp_path / "rec", "a", "n2", ("v",))
+    for t, v in ((10.0, 1.5), (10.1, 2.5), (10.2, 3.5)):
+        rec.write(t, [v])
+    rec.close()
+    counts = replay(tmp_path / "rec", tmp_path / "out", {"pairs": (f"{__name__}:PairsMeasure", {})})
+    assert counts == {"pairs": 6}
+    rows = read_csv(tmp_path / "out" / "measures" / "pairs_replay.csv", "pairs", "replay")
+    assert [r.values for r in rows] == [(v, p) for v in (1.5, 2.5, 3.5) for p in (0.0, 1.0)]
