@@ -1,4 +1,4 @@
-"""The AHRS application (entry point ``attitude`` of ``hera.apps``): truth, scores, plots and the
+"""The AHRS application (entry point ``attitude3d`` of ``hera.apps``): truth, scores, plots and the
 live panel of our AHRS and the thesis's (e11), through :class:`hera.application.Application`.
 
 Truth: the body's orientation in the simulated world (any scenario; the ones of thesis
@@ -29,6 +29,7 @@ from hera.application import (
     Panel,
     Series,
     Truth,
+    WebPanel,
 )
 from hera.models.ahrs.measures import Ahrs, AhrsThesis
 from hera.models.ahrs.model import QUAT
@@ -194,3 +195,25 @@ class AhrsApp(Application):
         cols = ("model", "node", "yaw deg", "pitch deg", "roll deg", "err deg", "tilt err")
         title = "attitude" + (" (truth from the simulated world)" if truth else "")
         return Panel(title, (*cols, "head err"), tuple(rows))
+
+    def web_panel(self, estimates: Sequence[Estimate], truth: Truth | None) -> WebPanel | None:
+        """An artificial horizon and a compass per model and node (yaw, pitch, roll in
+        radians, ``R = Rz(yaw) Ry(pitch) Rx(roll)``), and the truth at the newest estimate's
+        time."""
+        bodies = []
+        for e in estimates:
+            if all(c in e.values for c in QUAT):
+                ypr = np.radians(yaw_pitch_roll_deg([[e.values[c] for c in QUAT]])[0])
+                bodies.append({"label": f"{self.label(e.name, e.measure)} {e.node}", **_rpy(ypr)})
+        if not bodies:
+            return None
+        if truth is not None:
+            tq = [[truth.at(max(e.t for e in estimates))[c] for c in QUAT]]
+            ypr = np.radians(yaw_pitch_roll_deg(tq)[0])
+            bodies.append({"label": "truth", **_rpy(ypr), "truth": True})
+        return WebPanel("attitude", "attitude", {"bodies": bodies})
+
+
+def _rpy(ypr: np.ndarray) -> dict[str, float]:
+    """A web panel body's angles (rad) from (yaw, pitch, roll)."""
+    return {"roll": float(ypr[2]), "pitch": float(ypr[1]), "yaw": float(ypr[0])}

@@ -29,6 +29,7 @@ from hera.application import (
     Panel,
     Series,
     Truth,
+    WebPanel,
 )
 from hera.models.ahrs.app import orientation_truth
 from hera.models.ahrs.model import QUAT
@@ -40,6 +41,7 @@ from hera.models.position3d.app import (
     position_errors,
     position_panel,
     position_truth,
+    position_web_panel,
 )
 
 LABELS = {Imu6dof: "e13", Imu6dofInertial: "no sonar"}
@@ -118,3 +120,6 @@ class Imu6dofApp(Application):
     def panel(self, estimates: Sequence[Estimate], truth: Truth | None) -> Panel | None:
         p = position_panel(self, estimates, truth)
         return None if p is None else Panel("6-DOF IMU " + p.title, p.columns, p.rows)
+
+    def web_panel(self, estimates: Sequence[Estimate], truth: Truth | None) -> WebPanel | None:
+        return position_web_panel(self, estimates, truth)

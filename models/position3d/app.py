@@ -29,6 +29,7 @@ from hera.application import (
     Panel,
     Series,
     Truth,
+    WebPanel,
 )
 from hera.models.position3d.measures import Position3d, Position3dThesis
 
@@ -120,6 +121,9 @@ class Position3dApp(Application):
     def panel(self, estimates: Sequence[Estimate], truth: Truth | None) -> Panel | None:
         return position_panel(self, estimates, truth)
 
+    def web_panel(self, estimates: Sequence[Estimate], truth: Truth | None) -> WebPanel | None:
+        return position_web_panel(self, estimates, truth)
+
 
 def plot_positions(
     app: Application, series: Sequence[Series], truth: Truth | None, out_dir: Path
@@ -199,3 +203,21 @@ def position_panel(
         rows.append(("truth", "", *(f"{last[c]:.3f}" for c in POS), "", ""))
     title = "position" + (" (truth from the simulated world)" if truth is not None else "")
     return Panel(title, ("model", "node", "x m", "y m", "z m", "max std cm", "err cm"), tuple(rows))
+
+
+def position_web_panel(
+    app: Application, estimates: Sequence[Estimate], truth: Truth | None
+) -> WebPanel | None:
+    """The target seen from above (x, y in m): every position model's estimate on each node
+    and the truth at the newest estimate's time (z is in the page's plots of the columns)."""
+    points = []
+    for e in estimates:
+        if all(c in e.values for c in POS):
+            x, y = e.values[POS[0]], e.values[POS[1]]
+            points.append({"label": f"{app.label(e.name, e.measure)} {e.node}", "x": x, "y": y})
+    if not points:
+        return None
+    if truth is not None:
+        tr = truth.at(max(e.t for e in estimates))
+        points.append({"label": "truth", "x": tr[POS[0]], "y": tr[POS[1]], "truth": True})
+    return WebPanel("position from above", "plane", {"shapes": [], "points": points})

@@ -3,7 +3,10 @@ eval`` and ``hera up`` ask them), and their truth for any simulated world."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
+import pytest
 from sim3d import run_ahrs, run_position
 
 from hera.application import Estimate, EvalOptions, Series
@@ -40,6 +43,12 @@ def test_position3d_scores_plots_and_panel(tmp_path):
     panel = app.panel([est], truth)
     assert panel.rows[0][0] == "position3d (ours)" and panel.rows[-1][0] == "truth"
     assert float(panel.rows[0][-1]) < 5.0  # cm from the truth
+    web = app.web_panel([est], truth)
+    assert web.kind == "plane" and json.loads(json.dumps(web.data)) == web.data
+    mine, true_point = web.data["points"]
+    assert (mine["x"], mine["y"]) == (values[POS[0]], values[POS[1]])
+    assert true_point["truth"] is True and true_point["x"] == truth.at(t)[POS[0]]
+    assert app.web_panel([est], None).data["points"] == [mine]
     assert app.label("position3d_thesis", Position3dThesis) == "position3d_thesis (e10)"
     assert app.truth({"scenario": "no such world"}) is None
     assert app.score(ours, None, EvalOptions()) == {}
@@ -70,6 +79,14 @@ def test_attitude_scores_plots_and_panel(tmp_path):
     panel = app.panel([e], truth)
     assert panel.rows[0][0] == "attitude_mekf (ours)" and panel.rows[-1][0] == "truth"
     assert panel.rows[0][-1] == "-0.57"  # heading error: the estimate turned 0.57 deg ccw
+    web = app.web_panel([e], truth)
+    assert web.kind == "attitude" and json.loads(json.dumps(web.data)) == web.data
+    ours, true_body = web.data["bodies"]
+    assert ours["label"] == "attitude_mekf (ours) nav_1" and true_body["truth"] is True
+    assert ours["yaw"] - true_body["yaw"] == pytest.approx(0.01, abs=1e-9)  # 2 x 0.005 rad
+    assert ours["roll"] == pytest.approx(true_body["roll"], abs=1e-9)
+    assert ours["pitch"] == pytest.approx(true_body["pitch"], abs=1e-9)
+    assert app.web_panel([Estimate("other", "n", 1.0, {"x": 1.0})], truth) is None
 
 
 def test_imu6dof_truth_has_position_and_orientation(tmp_path):
@@ -80,5 +97,8 @@ def test_imu6dof_truth_has_position_and_orientation(tmp_path):
     ours = _position_series(Imu6dof)
     s = app.score(ours, truth, EvalOptions())
     assert s["pos_rmse_cm"] < 2.0 and s["drift_10s_cm"] is not None and "att_mean_deg" not in s
+    values = dict(zip(ours.columns, ours.values[-1], strict=True))
+    web = app.web_panel([Estimate("imu6dof", "nav_1", 3.0, values, Imu6dof)], truth)
+    assert [p["label"] for p in web.data["points"]] == ["imu6dof (e13) nav_1", "truth"]
     files = app.plots([ours], truth, tmp_path, EvalOptions())
     assert all(f.parent.name == "imu6dof" for f in files) and len(files) == 2
