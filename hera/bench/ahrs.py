@@ -384,7 +384,9 @@ def cpu_table(seconds: float) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """CLI entry point (``hera bench ahrs``). Returns a process exit code."""
-    ap = argparse.ArgumentParser(prog="hera bench ahrs", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(
+        prog="hera bench ahrs", description=" ".join(__doc__.split("\n\n")[0].split())
+    )
     ap.add_argument("--seed", type=int, default=42, help="seed of both data sets")
     ap.add_argument("--samples", type=int, default=3000, help="ahrs.Sensors samples (100 Hz)")
     ap.add_argument("--seconds", type=float, default=30.0, help="rotation_fast seconds")
