@@ -57,6 +57,7 @@ def _run(tmp: Path, spec: str, seconds: float, seed: int, scenario: str | None =
 def test_position3d_spec(tmp_path, seed):
     res = _run(tmp_path, "position3d.toml", 35, seed)
     for node in ("computer", "sonar_x"):
+        print(f"position3d seed {seed} {node}: {res[('position3d', node)]}")  # -s: README
         assert res[("position3d", node)]["pos_rmse_cm"] <= 2.0, res
         assert res[("position3d", node)]["estimates"] > 400
 
@@ -70,6 +71,7 @@ def test_ahrs_spec(tmp_path, scenario, target, seed):
     res = _run(tmp_path, "ahrs.toml", 35, seed, scenario)
     for node in ("computer", "nav_1"):
         ours = res[("attitude_mekf", node)]
+        print(f"attitude {scenario} seed {seed} {node}: {ours}")  # -s: README
         assert ours["att_mean_deg"] <= target, (scenario, ours)
         assert ours["estimates"] > 400
 
@@ -79,5 +81,6 @@ def test_imu6dof_spec(tmp_path, seed):
     res = _run(tmp_path, "imu6dof.toml", 70, seed)
     for node in ("computer", "nav_1"):
         e13 = res[("imu6dof", node)]
+        print(f"imu6dof seed {seed} {node}: {e13}; unaided {res[('imu6dof_inertial', node)]}")
         assert e13["pos_rmse_cm"] <= 5.0, e13
         assert res[("imu6dof_inertial", node)]["drift_10s_cm"] > 10 * e13["drift_10s_cm"]
