@@ -1,7 +1,7 @@
 """deploy/ahrs.toml as a real cluster on the fast turns (rotation_fast), with a magnetic
 disturbance of 10 s switched on the board mid-run (issue 11).
 
-One run of about 35 s is shared by the tests of this module: after 12 s of estimates, a
+One run of about 25 s is shared by the tests of this module: after 8 s of estimates, a
 ``field`` fault (0.1 gauss fixed in the world, to the east: the field's heading turns by
 26 deg, its norm and dip hardly) is switched on ``nav_1``'s board for 10 s through the
 simulator's ``board`` verb. Asserted on both nodes that run the models: our mean attitude
@@ -43,14 +43,14 @@ def disturbed_run(tmp_path_factory):
         def published() -> int:
             return c.status("computer")["measures"]["attitude_mekf"]["published"]
 
-        wait_for(lambda: published() > 240, 90, "12 s of attitude estimates")
+        wait_for(lambda: published() > 160, 90, "8 s of attitude estimates")
         request = {"board": "nav_1/nav", "fault": "field", "sensor": "mag"}
         t_on = time.time()
         reply = c.control("nav_1", "board", {**request, "value": FIELD, "duration": SECONDS})
         assert reply["ok"], reply
         t_off = t_on + SECONDS
         start = published()
-        wait_for(lambda: published() > start + 20 * (SECONDS + 8), 60, "the fault and 8 s more")
+        wait_for(lambda: published() > start + 20 * (SECONDS + 5), 60, "the fault and 5 s more")
     finally:
         c.stop()
     return c.run_dir, t_on, t_off
@@ -72,7 +72,7 @@ def test_ours_meets_its_target_and_shrugs_off_the_disturbance(disturbed_run):
         settled = t >= t[0] + 3.0
         during = (t >= t_on + 0.1) & (t < t_off - 0.1)  # the reply may land a step late
         outside = settled & ((t < t_on) | (t >= t_off + 2.0))
-        assert during.sum() > 150 and outside.sum() > 300, s.node
+        assert during.sum() > 150 and outside.sum() > 120, s.node
         assert att[outside].mean() <= 3.0, (s.node, att[outside].mean())
         assert np.abs(head[during]).max() <= 5.0, (s.node, np.abs(head[during]).max())
         assert tilt[during].mean() <= tilt[outside].mean() + 0.1, s.node

@@ -1,8 +1,8 @@
 """deploy/imu6dof.toml as a real cluster: the sonars' position (ours and e10), the 6-DOF IMU
 aided by it (e13) and unaided, with a sonar node SIGKILLed mid-run (issue 11).
 
-One run of about 45 s is shared by the tests of this module: 20 s undisturbed, then
-``sonar_z`` is SIGKILLed; the launcher restarts it; 12 s more. Asserted against the truth,
+One run of about 35 s is shared by the tests of this module: 14 s undisturbed, then
+``sonar_z`` is SIGKILLed; the launcher restarts it; 8 s more. Asserted against the truth,
 on both nodes that run each model: our position RMSE <= 2 cm before the kill; while the
 sonar is gone, the two observed axes within 3 cm (RMS) and the lost axis's reported
 standard deviation growing; 2 s after the sonar's return, the position and the standard
@@ -43,7 +43,7 @@ def killed_run(tmp_path_factory):
         def published() -> int:
             return c.status("computer")["measures"]["position3d"]["published"]
 
-        wait_for(lambda: published() > 400, 90, "20 s of position estimates")
+        wait_for(lambda: published() > 280, 90, "14 s of position estimates")
         t_kill = time.time()
         os.kill(c.pid("sonar_z"), signal.SIGKILL)
         wait_for(lambda: c.launcher_state()["sonar_z"]["restarts"] == 1, 15, "sonar_z restarted")
@@ -54,7 +54,7 @@ def killed_run(tmp_path_factory):
 
         wait_for(lambda: sonar_z_published() > 5, 30, "sonar_z publishing again")
         back = published()
-        wait_for(lambda: published() > back + 240, 40, "12 s more of position estimates")
+        wait_for(lambda: published() > back + 240, 40, "8 s more of position estimates")
     finally:
         c.stop()
     return c.run_dir, t_kill
@@ -94,7 +94,7 @@ def test_position_meets_its_targets_through_the_loss_of_a_sonar(killed_run):
         before = settled & (t < kill)
         gone = (t >= kill) & (t < back)
         after = (t >= back + 2.0) & (t < back + 10.0)
-        assert before.sum() > 250 and gone.sum() >= 5 and after.sum() > 100, s.node
+        assert before.sum() > 180 and gone.sum() >= 5 and after.sum() > 80, s.node
         assert _rmse_cm(err[before]) <= 2.0, (s.node, _rmse_cm(err[before]))
         observed = np.sqrt(np.mean(err[gone][:, :2] ** 2, axis=0))
         assert observed.max() <= 0.03, (s.node, observed)
