@@ -58,6 +58,7 @@ def test_position3d_spec(tmp_path, seed):
     res = _run(tmp_path, "position3d.toml", 35, seed)
     for node in ("computer", "sonar_x"):
         print(f"position3d seed {seed} {node}: {res[('position3d', node)]}")  # -s: README
+        print(f"e10 seed {seed} {node}: {res[('position3d_thesis', node)]}")
         assert res[("position3d", node)]["pos_rmse_cm"] <= 2.0, res
         assert res[("position3d", node)]["estimates"] > 400
 
