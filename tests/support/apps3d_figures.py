@@ -83,6 +83,12 @@ def position() -> None:
         f"ours {np.mean(ours):.2f} (worst {max(ours):.2f})   e10 {np.mean(e10):.2f} "
         f"(worst {max(e10):.2f})"
     )
+    noisy = {"noise_m": 0.025}  # the data sheet's 2.5 cm as white noise (default 1 cm)
+    for lag in (0.2, 0.6):
+        r = [run_position(s, sonar_model=noisy, settings={"lag": lag}).rmse_cm() for s in range(5)]
+        print(f"2.5 cm white noise + 1 in rounding, lag {lag} s: {min(r):.2f}-{max(r):.2f} cm")
+    r = [run_position(s, sonar_model=noisy, thesis=True).rmse_cm() for s in range(5)]
+    print(f"the same noise, e10: {min(r):.2f}-{max(r):.2f} cm")
     sys.path.insert(0, str(Path(__file__).parents[1] / "models"))
     from test_position3d import _tilted
 

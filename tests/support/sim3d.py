@@ -114,16 +114,22 @@ def run_position(
     down: dict | None = None,
     world: dict | None = None,
     after: float = 3.0,
+    sonar_model: dict | None = None,
+    settings: dict | None = None,
 ) -> PositionRun:
-    """Our sonar tracker (or e10) over ``duration`` s of the sync group's readings."""
+    """Our sonar tracker (or e10) over ``duration`` s of the sync group's readings
+    (``sonar_model``: the simulated MaxSonars' error model's arguments; ``settings``: more
+    model settings)."""
     sonars = sonars or SONARS
     w = world or {"scenario": "target3d", "epoch": 0.0}
     mounts = {
         n: SonarMount(p, tuple(np.array(d) / np.linalg.norm(d))) for n, (p, d) in sonars.items()
     }
-    samples = sonar_stream(w, mounts, duration, seed=seed, start=3.0, slot=SLOT, down=down)
+    samples = sonar_stream(
+        w, mounts, duration, seed=seed, start=3.0, slot=SLOT, down=down, model=sonar_model
+    )
     cls = ThesisPosition if thesis else RangeTracker
-    model = cls(sonars=settings_of(sonars))
+    model = cls(sonars=settings_of(sonars), **(settings or {}))
     t, x = [], []
     for s in samples:
         if model.process(s):
