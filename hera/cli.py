@@ -179,6 +179,12 @@ def _parser() -> argparse.ArgumentParser:
         help="start each model at the first sample NODE's live model fused and write "
         "estimates at the live estimates' instants (to compare a replay with a live node)",
     )
+    rp.add_argument(
+        "--smooth",
+        action="store_true",
+        help="also write RTS-smoothed estimates of each KF/EKF model to OUT/smoothed "
+        "(a run dir: hera eval OUT/smoothed scores them)",
+    )
 
     ev = _command(
         sub, "eval", "score a run through its applications, with plots", HELP_EXAMPLES["eval"]
@@ -533,7 +539,16 @@ def _replay(args: argparse.Namespace) -> int:
     from hera.progress import Progress
 
     with Progress("replay") as progress:
-        counts = replay(args.recordings, args.out, chosen, args.node, like, progress)
+        counts = replay(
+            args.recordings,
+            args.out,
+            chosen,
+            args.node,
+            like,
+            progress,
+            smooth=args.smooth,
+            say=progress.say,
+        )
     for name, n in counts.items():
         print(f"{name:<20} {n:>7} estimates -> {Path(args.out) / 'measures'}")
     return 0

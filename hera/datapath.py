@@ -235,9 +235,10 @@ class DataPath:
             if n >= REFUSED_ALARM
         }
 
-    def reject(self, kind: str, message: str) -> None:
-        """Count one rejected input of ``kind`` (logged the first times, then every 1000)."""
-        self.rejected[kind] = self.rejected.get(kind, 0) + 1
+    def reject(self, kind: str, message: str, count: int = 1) -> None:
+        """Count ``count`` rejected inputs of ``kind`` (logged the first times, then every
+        1000)."""
+        self.rejected[kind] = self.rejected.get(kind, 0) + count
         self.last_rejection = message
         if self.rejected[kind] <= 3 or self.rejected[kind] % 1000 == 0:
             log.warning("rejected input (%s, %d so far): %s", kind, self.rejected[kind], message)
@@ -291,7 +292,9 @@ class DataPath:
             except Exception as e:  # a peer's bad reply must not stop this node's start
                 log.warning("ignoring malformed seq reply: %s", e)
         if refused:
-            self.reject("foreign_seq", f"{refused} seq answers not of incarnation of this node")
+            self.reject(
+                "foreign_seq", f"{refused} seq answers not of incarnation of this node", refused
+            )
         return refused
 
     def percentiles(self) -> dict[str, dict[str, float]]:

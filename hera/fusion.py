@@ -49,9 +49,13 @@ if TYPE_CHECKING:  # pragma: no cover
 class FusionModel(Protocol):
     """What a fusion model gives. Optionally, ``counters() -> {name: int}``: its diagnostic
     counters (samples rejected, late, ...), shown in ``hera status`` and written by
-    ``hera replay``; and ``outputs() -> [(t, values), ...]``: a model that makes several
+    ``hera replay``; ``outputs() -> [(t, values), ...]``: a model that makes several
     rows at a time (a map in tiles) hands every row made since the last call there instead
-    of through :meth:`estimate`; a fusion measure publishes them in order, one per step."""
+    of through :meth:`estimate`; a fusion measure publishes them in order, one per step;
+    and, for ``hera replay --smooth`` (``hera.smoothing``), ``filter``: the
+    ``KalmanFilter`` or ``ExtendedKalmanFilter`` the model steps (one, for the whole run),
+    with ``estimate_of(x) -> list[float]``: the output columns of a state x of that filter
+    (what ``estimate`` gives for its current state)."""
 
     inputs: tuple[str, ...]
     columns: tuple[str, ...]

@@ -23,6 +23,7 @@ node that exits non-zero, but 78.
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import logging
 import os
 import signal
@@ -143,7 +144,9 @@ class Node:
                 raise FatalStart(f"its port {me} is in use by another process") from None
             raise
         self.data.attach(s)
-        if self.data.csv is not None:  # the logging node keeps every sender's samples
+        if self.spec.node(self.name).store == "all":  # a full mirror, for tools
+            self.data.want(None)
+        elif self.data.csv is not None:  # the logging node keeps every sender's samples
             self.data.want(self.spec.log_names or None)
         self.args = ArgsStore(
             self.name, s, self.keys, self.state_dir, self.spec.max_clock_skew_ms * 1_000_000
@@ -172,16 +175,15 @@ class Node:
         log.info("node %s up on %s with %d measures", self.name, me, len(self.decl.measures))
 
     def _select_estimation_backend(self) -> None:
-        """Nodes fuse on numpy unless the spec asks for numba ([cluster] estimation_backend):
-        at sensor rates a numpy step costs well under a millisecond, while numba compiles
-        its kernels for seconds at first use. With numba they are compiled (or loaded from
-        numba's cache) here, before any measure runs, so no first step stalls."""
-        from hera import estimation
+        """Nodes fuse on numpy unless the spec asks for numba ([cluster] estimation_backend).
+        The choice applies when a measure makes its first filter: a node that runs none
+        never imports numba (about 65 MB) nor loads the kernels (about 80 MB more)."""
+        from hera.estimation import backend
 
-        estimation.set_backend(self.spec.estimation_backend)
-        spent = estimation.warmup()
-        if spent:
-            log.info("estimation kernels ready in %.2f s", spent)
+        name = self.spec.estimation_backend
+        if name == "numba" and importlib.util.find_spec("numba") is None:
+            raise FatalStart("estimation_backend = 'numba' but numba is not installed")
+        backend.prefer(name)
 
     def _remember_incarnation(self) -> None:
         """Read the incarnation of this node's previous process from its state directory

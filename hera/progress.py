@@ -50,6 +50,17 @@ class Progress:
             self.stream.write(text + "\n")
         self.stream.flush()
 
+    def say(self, text: str) -> None:
+        """Print one line of news (``hera replay --smooth``: a model left out), below the
+        progress line on a terminal."""
+        if self.quiet:
+            return
+        if self._open_line:
+            self.stream.write("\n")
+            self._open_line = False
+        self.stream.write(f"  {text}\n")
+        self.stream.flush()
+
     def finish(self) -> None:
         """Print the final line (once), if anything was counted."""
         if self._last is not None and not self.quiet:

@@ -17,6 +17,7 @@ from typing import Any
 from hera.fusion import FusionMeasure, model_counters, model_outputs, spec_models
 from hera.plugins import find_measure
 from hera.recordings import CsvWriter, read_recordings
+from hera.smoothing import NotSmoothable, SmoothedRun, smoothed_dir
 from hera.spec import ClusterSpec
 
 
@@ -70,6 +71,8 @@ def replay(
     node: str = "replay",
     like: Mapping[str, tuple[float, set[int]]] | None = None,
     progress: Callable[[int, int], None] | None = None,
+    smooth: bool = False,
+    say: Callable[[str], None] | None = None,
 ) -> dict[str, int]:
     """Run each model (name -> (measure use, model params)) over ``recordings``; write its
     estimates to ``out``; return the number of estimates per model.
@@ -78,6 +81,9 @@ def replay(
     a live node: each model starts at the live model's first sample and writes estimates
     only at the live estimates' instants, so the two are compared on the same estimates.
     ``progress(done, total)`` is told the samples fed so far (all models together).
+
+    ``smooth``: also write each model's RTS-smoothed estimates (see :mod:`hera.smoothing`);
+    a model that cannot be smoothed is said so through ``say`` (one line) and left out.
     """
     instances = {}
     for name, (use, params) in models.items():
@@ -85,6 +91,7 @@ def replay(
         if not issubclass(cls, FusionMeasure):
             raise ValueError(f"{use!r} is not a fusion model: it cannot be replayed")
         instances[name] = cls.make_model(params, f"model {name!r} ({use})")
+    say = say or (lambda _text: None)
     inputs = {n for m in instances.values() for n in m.inputs}
     samples = read_recordings(recordings, inputs, known=inputs)
     counts = {}
@@ -93,6 +100,7 @@ def replay(
         writer = CsvWriter(out, name, node, model.columns)
         t_start, instants = (like or {}).get(name, (float("-inf"), None))
         t_start -= CSV_RESOLUTION_S  # the recordings' times are rounded to the microsecond
+        smoother = _smoother(model, name, say) if smooth else None
         try:
             for i, s in enumerate(samples):
                 if progress is not None and i % 5000 == 0:
@@ -106,17 +114,33 @@ def replay(
                 for t, values in rows:
                     if instants is None or round(t * 1e6) in instants:
                         writer.write(t, values)
+                        if smoother is not None:
+                            smoother.mark(t)
         finally:
             writer.close()
         fed += len(samples)
         counts[name] = writer.seq
         write_counters(out, name, node, model_counters(model))
+        if smoother is not None:
+            written = smoother.write(out, name, node, model.columns)
+            say(f"{name}: {written} smoothed estimates -> {smoothed_dir(out) / 'measures'}")
     if progress is not None:
         progress(total, total)
     src = Path(recordings) / "cluster.json"
     if src.exists() and Path(out).resolve() != Path(recordings).resolve():
         shutil.copy(src, Path(out) / "cluster.json")  # the world, for hera eval
+    if src.exists() and smooth and smoothed_dir(out).exists():
+        shutil.copy(src, smoothed_dir(out) / "cluster.json")
     return counts
+
+
+def _smoother(model: Any, name: str, say: Callable[[str], None]) -> SmoothedRun | None:
+    """``--smooth``: a recorder of the model's filter, or None (said) if it has none."""
+    try:
+        return SmoothedRun(model, f"model {name!r}")
+    except NotSmoothable as e:
+        say(str(e))
+        return None
 
 
 def write_counters(out: str | Path, name: str, node: str, counters: Mapping[str, int]) -> Path:

@@ -123,6 +123,12 @@ class NodeSpec:
         "endpoints it connects to (default: the routers of its host, else every router, "
         "else every other node)",
     )
+    store: str = setting(
+        "interest",
+        choice("interest", "all"),
+        "what its store takes: `interest` (the names its measures read) or `all` (every "
+        "sample of the cluster, for tools; the `[logging]` node takes what it logs too)",
+    )
 
 
 @dataclass(frozen=True)
@@ -185,7 +191,8 @@ class ClusterSpec:
     estimation_backend: str = setting(
         "numpy",
         choice("numpy", "numba", "auto"),
-        "`numba` compiles the estimation kernels at node start; `auto` uses numba if installed",
+        "`numba`: compiled estimation kernels, loaded when a measure makes its first filter; "
+        "`auto` uses numba if installed",
         table="cluster",
     )
     strategy: str = setting(

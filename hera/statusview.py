@@ -187,6 +187,9 @@ def render_node(status: Mapping[str, Any]) -> str:
         f"store: {store.get('entries', 0)} entries, {store.get('accepted', 0)} accepted, "
         f"{store.get('stale', 0)} stale; rejected: {status.get('rejected') or 'none'}"
     )
+    if "takes" in store:
+        takes = store["takes"]
+        lines.append(f"takes: {'every sample' if takes is None else ', '.join(takes) or 'nothing'}")
     if status.get("last_rejection"):
         lines.append(f"last rejected: {status['last_rejection']}")
     for source, r in sorted((status.get("refused_sources") or {}).items()):

@@ -4,7 +4,8 @@ Prints, each measured in this run:
 
 - publish-to-peer-store latency (p50, p99) between two node processes at 100 Hz and 1 kHz;
 - how many messages per second one node's store absorbs from a flooding peer;
-- the CPU share of an idle 5-node observer cluster (deploy/observers.toml);
+- the CPU share and the memory (RSS of each node) of an idle 5-node observer cluster
+  (deploy/observers.toml; a node that runs no filter never loads numba);
 - how fast a crashed measure runs again, and how fast peers notice a SIGKILLed and a
   SIGSTOPped node;
 - the latency cost of security: publish-to-store p50 at 1 kHz with user/password
@@ -55,6 +56,7 @@ name = "beacon"
 period = {period}
 [[nodes]]
 name = "b"
+store = "all"
 """
 
 
@@ -186,7 +188,9 @@ def observers(cpu_seconds: float, crashes: int) -> dict[str, object]:
     out: dict[str, object] = {}
     with running(None, observers_spec()) as c:
         time.sleep(2.0)
-        pids = {n: st["pid"] for n, st in c.status(1.0).items()}
+        status = c.status(1.0)
+        pids = {n: st["pid"] for n, st in status.items()}
+        out["rss_mb"] = [st["rss_mb"] for st in status.values() if st.get("rss_mb") is not None]
         before = {n: _cpu_seconds(p) for n, p in pids.items()}
         t0 = time.monotonic()
         time.sleep(cpu_seconds)
@@ -240,6 +244,7 @@ def main(argv: list[str]) -> int:
         return "n/a" if x is None else f"{x:.{digits}f} {unit}"
 
     rs = obs["restart_ms"]
+    mem = obs["rss_mb"]
     rows = [
         ("latency p50 @100 Hz", fmt(lat100.get("p50"), "ms", 3), "", ""),
         ("latency p99 @100 Hz", fmt(lat100.get("p99"), "ms", 3), "<= 2 ms", ""),
@@ -251,6 +256,12 @@ def main(argv: list[str]) -> int:
             f"{obs['cpu_total_pct']:.1f} % of one core "
             f"({obs['cpu_machine_pct']:.1f} % of {os.cpu_count()} cores)",
             "",
+            "",
+        ),
+        (
+            "observer node RSS (each)",
+            f"{min(mem):.0f}-{max(mem):.0f} MB" if mem else "n/a",
+            "<= 50 MB",
             "",
         ),
         (

@@ -26,8 +26,9 @@ from collections.abc import Callable
 import numpy as np
 
 TARGET = 3.0
+TARGETS = {"KF": TARGET, "EKF": 4.0, "UKF": TARGET}  # issue 21: >= 3x everywhere, EKF >= 4x
 CHUNK = 100  # steps per turn when the two libraries alternate
-INSTALL_HINT = "pip install 'hera-fusion[bench]'"
+INSTALL_HINT = "pip install 'hera-fusion[bench]' (or: pip install filterpy)"
 
 
 class _Model:
@@ -275,15 +276,28 @@ def format_table(rows: list[dict]) -> str:
     ]
     for r in rows:
         ratio = r["ratio"]
-        ok = "met" if ratio >= TARGET else "MISSED"
+        target = TARGETS[r["filter"]]
+        ok = "met" if ratio >= target else "MISSED"
         step = ""
         if "step_us" in r:
             step = f" {r['step_us']:>8.1f} {r['step_ratio']:>10.2f}"
         lines.append(
             f"{r['filter']:<6} {r['n']:>2} {r['m']:>2} {r['ours_us']:>9.1f} "
-            f"{r['filterpy_us']:>12.1f} {ratio:>7.2f}  {ok + f' (>= {TARGET:g}x)':<15}{step}"
+            f"{r['filterpy_us']:>12.1f} {ratio:>7.2f}  {ok + f' (>= {target:g}x)':<15}{step}"
         )
     return "\n".join(lines)
+
+
+def rss_mb() -> float:
+    """Resident set size of this process in MB (Linux /proc; 0.0 where unavailable)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return 0.0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -307,9 +321,14 @@ def main(argv: list[str] | None = None) -> int:
     from hera.estimation import backend
 
     t0 = time.perf_counter()
-    name = backend.backend()
-    warm = backend.warmup()
-    print(f"hera.estimation backend: {name} (one-off compile/cache load {warm:.2f} s)")
+    name = backend.backend()  # compiles the kernels the first time on this machine
+    warm = time.perf_counter() - t0
+    ready = f"kernels compiled or loaded in {warm:.2f} s, cached in {backend.cache_dir()}"
+    print(
+        f"hera.estimation backend: {name} "
+        f"({ready if name == 'numba' else 'numba not installed'}); "
+        f"this process: {rss_mb():.0f} MB RSS"
+    )
     rows = run(steps, kinds, [2, 4, 9], [1, 2, 3])
     print(
         f"Kalman filter step (predict + update), median of {steps} steps per case; ratio: "
@@ -317,8 +336,12 @@ def main(argv: list[str] | None = None) -> int:
         "step(dt, obs) (information, not the target)"
     )
     print(format_table(rows))
-    met = sum(r["ratio"] >= TARGET for r in rows)
-    print(f"{met} of {len(rows)} cases meet the {TARGET:g}x target")
+    met = sum(r["ratio"] >= TARGETS[r["filter"]] for r in rows)
+    at3 = sum(r["ratio"] >= TARGET for r in rows)
+    print(
+        f"{met} of {len(rows)} cases meet their target (EKF {TARGETS['EKF']:g}x, else "
+        f"{TARGET:g}x); {at3} of {len(rows)} are >= {TARGET:g}x"
+    )
     print(f"total {time.perf_counter() - t0:.1f} s")
     return 0
 

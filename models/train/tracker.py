@@ -430,3 +430,16 @@ class TrainTracker:
         if self.n > 1:
             x[2] = math.atan2(math.sin(x[2]), math.cos(x[2]))
         return self.t, x
+
+    # -- smoothing (hera replay --smooth) -----------------------------------------------
+    @property
+    def filter(self) -> ExtendedKalmanFilter:
+        """The EKF this model steps (recorded and RTS-smoothed by ``hera replay --smooth``)."""
+        return self.ekf
+
+    def estimate_of(self, x: np.ndarray) -> list[float]:
+        """The output columns of a state x, as ``estimate`` gives them for the filter's."""
+        out = [float(v) for v in x[: self.n_out]]
+        if self.n > 1:
+            out[2] = math.atan2(math.sin(out[2]), math.cos(out[2]))
+        return out

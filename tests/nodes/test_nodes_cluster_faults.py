@@ -36,6 +36,7 @@ name = "n1"
 
 [[nodes]]
 name = "n2"
+store = "all"  # the watcher: its store takes every sample (it reads nothing itself)
 """
 
 N = 6  # samples observed per phase

@@ -153,3 +153,64 @@ def test_an_out_of_tree_application_runs_scores_and_replays(installed, tmp_path)
     again = _run(installed, "hera", "eval", str(tmp_path / "again"), "--json", cwd=tmp_path)
     (row,) = json.loads(again.stdout)
     assert row["application"] == "thermo" and row["rmse_degc"] < 0.25
+
+
+def test_the_install_compiles_its_kernels_once_into_a_user_cache(installed, tmp_path):
+    """The README's install brings numba (a core dependency): ``hera bench kalman --quick``
+    reports the compiled backend. The kernels are compiled once, with a line saying so,
+    into the per-user cache although the installed package is read only (the venv is
+    bind-mounted read-only for the runs); the next process loads them without compiling."""
+    site = Path(
+        _run(
+            installed, "python", "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])",
+            cwd=tmp_path,
+        ).stdout.strip()
+    )  # fmt: skip
+    assert (site / "numba").is_dir(), "numba is not installed by the plain install"
+    # the benchmark's peer, as the README says (scipy is FilterPy's import-time need;
+    # --no-deps keeps matplotlib out, which another test of this venv relies on)
+    pip = [str(installed / "python"), "-m", "pip", "install", "-q"]
+    got = subprocess.run([*pip, "scipy"], capture_output=True, text=True, timeout=600)
+    assert got.returncode == 0, got.stderr[-2000:]
+    got = subprocess.run([*pip, "--no-deps", "filterpy"], capture_output=True, text=True)
+    assert got.returncode == 0, got.stderr[-2000:]
+    venv_dir = installed.parent
+    cache = tmp_path / "cache"
+
+    def read_only(*cmd: str) -> subprocess.CompletedProcess:
+        script = (
+            f'mount --bind -o ro "{venv_dir}" "{venv_dir}" && touch "{site}/w" 2>/dev/null '
+            '&& { echo "site-packages is writable"; exit 3; }; exec "$@"'
+        )
+        env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+        env.pop("NUMBA_CACHE_DIR", None)
+        env.update(PATH=f"{installed}{os.pathsep}{env.get('PATH', '')}", XDG_CACHE_HOME=str(cache))
+        return subprocess.run(
+            ["unshare", "--mount", "sh", "-c", script, "sh", *cmd],
+            cwd=tmp_path,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+
+    bench = read_only("hera", "bench", "kalman", "--quick")
+    assert bench.returncode == 0, bench.stdout[-2000:] + bench.stderr[-2000:]
+    assert "hera.estimation backend: numba" in bench.stdout, bench.stdout[:500]
+    assert sum(line.startswith(("KF ", "EKF ", "UKF ")) for line in bench.stdout.splitlines()) == 27
+    where = cache / "hera" / "numba"
+    lines = bench.stderr.splitlines()
+    assert any(
+        line.startswith("hera.estimation: compiling ") and str(where) in line for line in lines
+    ), bench.stderr[-2000:]
+    assert any(
+        line.startswith("hera.estimation: numba kernels compiled in ") and "cached in" in line
+        for line in lines
+    ), bench.stderr[-2000:]
+    assert list(where.rglob("kernels_numba.*.nbi")), "nothing cached in the user cache"
+    assert not list(venv_dir.rglob("*.nbi")), "numba wrote into the installed package"
+    again = read_only(
+        "python", "-c", "from hera.estimation import backend; print(backend.backend())"
+    )
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert again.stdout.strip() == "numba" and "compiling" not in again.stderr, again.stderr

@@ -22,6 +22,7 @@ def test_bench_bus_quick_prints_every_figure(tmp_path):
         "latency p99 @1 kHz",
         "store absorbs",
         "idle 5-node observers CPU",
+        "observer node RSS (each)",
         "crashed measure running again",
         "SIGKILLed node noticed",
         "SIGSTOPped node noticed",

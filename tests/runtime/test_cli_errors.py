@@ -58,7 +58,7 @@ CASES = [
             "[cluster]: unknown key 'base_prot' (did you mean 'base_port'?); known keys: name, "
             "host, base_port, lease_ms, sync_lease_ms, multicast_scouting, estimation_backend",
             "[[nodes]] #1: unknown key 'nmae' (did you mean 'name'?); known keys: name, port, "
-            "sync_hosts, measures, host, mode, listen, connect",
+            "sync_hosts, measures, host, mode, listen, connect, store",
             "[[nodes]] #1: name is required (node name, the `<node>` of its keys)",
         ],
     ),

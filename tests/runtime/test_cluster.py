@@ -6,7 +6,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import msgpack
 import pytest
@@ -97,7 +96,7 @@ def test_sigkilled_node_restarts_recovers_args_and_continues_seq(cluster, tmp_pa
     )
     wait_for(lambda: c.launcher_state()[victim]["restarts"] == 1, 10, "the launcher restart")
     wait_for(
-        lambda: victim in c.client.status(0.5) and c.pid(victim) != old_pid,
+        lambda: c.restarted(victim, old_pid),
         10,
         f"{victim} answering again",
     )
@@ -215,7 +214,7 @@ def test_injected_faults_through_the_control_plane(cluster, tmp_path):
     old = c.pid("n5")
     assert c.control("n5", "inject", {"fault": "crash_node"})["ok"]
     wait_for(lambda: c.launcher_state()["n5"]["restarts"] == 1, 10, "n5 restarted")
-    wait_for(lambda: "n5" in c.client.status(0.5) and c.pid("n5") != old, 10, "n5 back")
+    wait_for(lambda: c.restarted("n5", old), 10, "n5 back")
     assert c.launcher_state()["n5"]["last_exit"] == 70
 
 
@@ -242,8 +241,9 @@ def test_bad_payloads_are_rejected_counted_and_harmless(cluster, tmp_path):
     c = cluster(five_nodes(tmp_path).replace('name = "five"', 'name = "bad"'))
     wait_for(lambda: seen_everywhere(c), 10, "a settled cluster")
     pids = {n.name: c.pid(n.name) for n in c.client.spec.nodes}
-    with open_session(c.operator_bus(connect=(c.client.spec.endpoint("n1"),))) as s:
-        time.sleep(0.2)  # let the new peer's declarations propagate before publishing
+    nodes = [n.name for n in c.client.spec.nodes]
+    with open_session(c.operator_bus(connect=tuple(c.client.spec.endpoint(n) for n in nodes))) as s:
+        c.reached(s, nodes)
         for payload in BAD_PAYLOADS.values():
             s.put("hera/bad/data/evil/x", payload)
         s.put("hera/bad/data/evil", encode(1, 1.0, [1.0]))  # a key without a node

@@ -103,11 +103,28 @@ class Cluster:
 
         return secured(self.client.spec, OPERATOR, BusConfig(connect=connect, **kw))
 
+    def reached(self, session, nodes) -> None:
+        """Wait until every node of ``nodes`` answers a status query on ``session``: its
+        reply comes after its declarations on the same link (declared in one batch when
+        the link opened), so a put on ``session`` reaches its subscribers from then on."""
+        prefix = f"hera/{self.client.spec.name}/ctl"
+
+        def answered(n):
+            return any(r.ok is not None for r in session.get(f"{prefix}/{n}/status", timeout=0.5))
+
+        for n in nodes:
+            wait_for(lambda n=n: answered(n), 10, f"{n} to answer the new session")
+
     def launcher_state(self) -> dict:
         return json.loads((self.run_dir / "launcher.json").read_text())["nodes"]
 
     def pid(self, node: str) -> int:
         return self.status(node)["pid"]
+
+    def restarted(self, node: str, old_pid: int) -> bool:
+        """Whether ``node`` answers with another pid than ``old_pid``, in one query (a node
+        going down may answer one query and not the next)."""
+        return self.client.status(0.5).get(node, {"pid": old_pid})["pid"] != old_pid
 
     def status(self, node: str) -> dict:
         return self.client.query(node, "status")[node]

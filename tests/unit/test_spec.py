@@ -45,14 +45,14 @@ MEASURE_KEYS = (
             {"nodes": [{"nmae": "a"}]},
             (
                 "s.toml: [[nodes]] #1: unknown key 'nmae' (did you mean 'name'?); known keys: "
-                "name, port, sync_hosts, measures, host, mode, listen, connect",
+                "name, port, sync_hosts, measures, host, mode, listen, connect, store",
                 "s.toml: [[nodes]] #1: name is required (node name, the `<node>` of its keys)",
             ),
         ),
         (
             {"nodes": [{"name": "a", "sync_host": ["g"]}]},
             "s.toml: [[nodes]] #1 (a): unknown key 'sync_host' (did you mean 'sync_hosts'?); "
-            "known keys: name, port, sync_hosts, measures, host, mode, listen, connect",
+            "known keys: name, port, sync_hosts, measures, host, mode, listen, connect, store",
         ),
         (
             {"cluster": {"name": "c", "base_prot": 7000}},

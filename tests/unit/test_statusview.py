@@ -141,3 +141,11 @@ def test_one_node_in_detail():
     text = render_node({**status["nav_1"], "node": "nav_1", "cluster": "train", "uptime_s": 9})
     assert text.splitlines()[0] == "node nav_1 of cluster train: pid 20818, up 9 s, 61 MB"
     assert "track_gyro" in text and "beam_edge=57" in text
+
+
+def test_one_node_says_what_its_store_takes():
+    status, _ = _train_status()
+    base = {**status["nav_1"], "node": "nav_1", "cluster": "train", "uptime_s": 9}
+    for takes, shown in ((None, "every sample"), ([], "nothing"), (["obs*", "nav"], "obs*, nav")):
+        text = render_node({**base, "store": {**base.get("store", {}), "takes": takes}})
+        assert f"takes: {shown}" in text.splitlines()
