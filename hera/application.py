@@ -24,7 +24,8 @@ Data the runtime hands an application:
 - a :class:`Series`: one model output of a run (times and values per column), read from the
   run's CSV logs or a replay;
 - an :class:`Estimate`: the latest estimate of a model on a node (live panel);
-- the world table of the spec (``[world]``) for :meth:`Application.truth`.
+- the world table of the spec (``[world]``) for :meth:`Application.truth`, or, for a run
+  without one (a real rig), its recordings for :meth:`Application.reference`.
 """
 
 from __future__ import annotations
@@ -75,6 +76,33 @@ class FunctionTruth:
         return self.fn(t)
 
 
+@dataclass(frozen=True)
+class Reference:
+    """What a run without a simulated truth is scored against: a :class:`Truth` and one
+    sentence saying what it is (``hera eval`` prints it), e.g. "self-consistency: omega
+    from lap timing"."""
+
+    truth: Truth
+    source: str
+
+
+class SeriesTruth:
+    """A :class:`Truth` from a recorded reference series (times and values per column):
+    each column interpolated linearly in time, absent outside the series' time span."""
+
+    def __init__(self, series: Series) -> None:
+        if len(series) < 2:
+            raise ValueError(f"reference {series.name}_{series.node}: needs two rows or more")
+        self.columns = tuple(series.columns)
+        self._t = series.t
+        self._v = series.values
+
+    def at(self, t: float) -> Mapping[str, float]:
+        if not self._t[0] <= t <= self._t[-1]:
+            return {}
+        return {c: float(np.interp(t, self._t, self._v[:, i])) for i, c in enumerate(self.columns)}
+
+
 @dataclass
 class Series:
     """One model output of a run: ``name`` published by ``node``, its ``columns`` (with
@@ -90,7 +118,9 @@ class Series:
 
     def __post_init__(self) -> None:
         self.t = np.asarray(self.t, dtype=float).reshape(-1)
-        self.values = np.asarray(self.values, dtype=float).reshape(len(self.t), -1)
+        values = np.asarray(self.values, dtype=float)
+        width = len(self.columns) if not values.size else -1
+        self.values = values.reshape(len(self.t), width)
 
     def __len__(self) -> int:
         return len(self.t)
@@ -184,6 +214,12 @@ class VerbContext:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
+Importer = Callable[[Path, Path], str]
+"""``importer(src, out) -> summary``: convert logs in a foreign format found in folder
+``src`` into a new run directory ``out`` (recordings, a ``cluster.json``) that ``hera
+replay`` and ``hera eval`` take as they are; returns one line saying what was imported.
+Raises ValueError with one sentence naming the file and what is wrong."""
+
 Verb = Callable[[Mapping[str, Any], VerbContext], Mapping[str, Any]]
 """A control verb: ``verb(request, ctx) -> reply``; raise ValueError with a clear sentence
 for a bad request (the caller receives ``{"ok": false, "error": ...}``)."""
@@ -210,6 +246,13 @@ class Application:
     def truth(self, world: Mapping[str, Any]) -> Truth | None:
         """The truth of a run in ``world`` (the spec's ``[world]``), or None when this
         application cannot tell it (no simulated world of its kind)."""
+        return None
+
+    def reference(self, recordings: Sequence[Path], world: Mapping[str, Any]) -> Reference | None:
+        """What to score a run against when its world has no truth (a real rig, imported
+        logs): built from the run's own recordings (folders, the run's first) by
+        self-consistency; None when it cannot tell. (``hera eval --reference FILE`` takes
+        precedence.)"""
         return None
 
     def score(
@@ -251,4 +294,9 @@ class Application:
 
     def examples(self) -> Mapping[str, Path]:
         """Example specs it ships, by name (``hera examples``, ``hera up NAME``)."""
+        return {}
+
+    def importers(self) -> Mapping[str, Importer]:
+        """Foreign log formats it can import, by format name (``hera import FORMAT SRC
+        OUT``)."""
         return {}

@@ -28,13 +28,13 @@ import contextlib
 import logging
 import os
 import threading
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import msgpack
 
+from hera import wallclock
 from hera.bus import query_all
 from hera.keys import Keys, check_chunk
 
@@ -61,6 +61,7 @@ class ArgsStore:
         self._keys = keys
         self._path = Path(state_dir) / self.FILE if state_dir is not None else None
         self._lock = threading.Lock()
+        self._save_lock = threading.Lock()  # one save at a time: the last one is the newest
         self._entries: dict[str, tuple[int, str, Any, bool]] = {}  # stamp, origin, value, deleted
         self._listeners: tuple[Callable[[str, Any, bool], None], ...] = ()
         self.rejected: dict[str, int] = {}
@@ -123,7 +124,7 @@ class ArgsStore:
         for chunk in key.split("/"):
             check_chunk(chunk, "args key element")
         with self._lock:
-            stamp = self._clock = max(time.time_ns(), self._clock + 1)
+            stamp = self._clock = max(wallclock.now_ns(), self._clock + 1)
         payload = _pack(stamp, self.node, value, deleted)  # fails early on unpackable values
         self._merge(key, stamp, self.node, value, deleted)
         if self._session is not None:
@@ -167,7 +168,7 @@ class ArgsStore:
             self.rejected[why] = self.rejected.get(why, 0) + 1
 
     def _future(self, stamp: int) -> bool:
-        return stamp > time.time_ns() + self.max_skew_ns
+        return stamp > wallclock.now_ns() + self.max_skew_ns
 
     def _merge(self, key: str, stamp: int, origin: str, value: Any, deleted: bool = False) -> int:
         if self._future(stamp):
@@ -225,14 +226,19 @@ class ArgsStore:
             log.error("ignoring unreadable args file %s: %s", self._path, e)
 
     def _save(self) -> None:
+        """Write every entry to the state file (atomically). Saves are serialised and each
+        takes its snapshot inside the save: two threads saving at once used to let the
+        older snapshot replace the newer file (a calibration stored by one measure while
+        another measure's was being written was lost on disk)."""
         if self._path is None:
             return
-        with self._lock:
-            data = {k: list(e) for k, e in self._entries.items()}
-        self._path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self._path.with_suffix(f".tmp{threading.get_ident()}")
-        tmp.write_bytes(msgpack.packb(data, use_bin_type=True))
-        os.replace(tmp, self._path)
+        with self._save_lock:
+            with self._lock:
+                data = {k: list(e) for k, e in self._entries.items()}
+            self._path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = self._path.with_suffix(".tmp")
+            tmp.write_bytes(msgpack.packb(data, use_bin_type=True))
+            os.replace(tmp, self._path)
 
 
 def _pack(stamp: int, origin: str, value: Any, deleted: bool = False) -> bytes:

@@ -12,7 +12,8 @@ from __future__ import annotations
 import json
 import os
 import tempfile
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
 
 import zenoh
 
@@ -61,6 +62,35 @@ class BusConfig:
         for key, value in self.extra.items():
             cfg.insert_json5(key, json.dumps(value))
         return cfg
+
+
+OVERRIDES_ENV = "HERA_BUS_OVERRIDES"
+"""Environment variable naming a JSON file of per-node bus overrides (see
+:func:`with_overrides`); a fault campaign sets it to route the nodes' links through its
+link proxy."""
+
+
+def with_overrides(
+    config: BusConfig, node: str, environ: Mapping[str, str] = os.environ
+) -> BusConfig:
+    """``config`` with the overrides for ``node`` from the file ``$HERA_BUS_OVERRIDES``
+    names, if set: ``{"nodes": {"<node>": {"connect": [endpoints], "zenoh": {key: value}}}}``
+    (``connect`` replaces the node's connect endpoints, ``zenoh`` adds Zenoh config keys).
+    A node the file does not name keeps ``config``. ValueError naming the file otherwise."""
+    path = environ.get(OVERRIDES_ENV)
+    if not path:
+        return config
+    try:
+        with open(path) as f:
+            data = json.load(f)
+        mine = data["nodes"].get(node)
+        if mine is None:
+            return config
+        connect = tuple(mine.get("connect", config.connect))
+        extra = {**config.extra, **dict(mine.get("zenoh", {}))}
+        return replace(config, connect=connect, extra=extra)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+        raise ValueError(f"bus overrides {path} ({OVERRIDES_ENV}) cannot be used: {e}") from None
 
 
 _LOGGING = False

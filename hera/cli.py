@@ -21,12 +21,17 @@ HELP_EXAMPLES = {
     "router": "hera router deploy/two_hosts.toml --name r_a",
     "status": "hera status nav_1",
     "down": "hera down --cluster train",
-    "inject": "hera inject n3 crash obs1",
+    "inject": "hera inject n3 crash obs1\n  hera inject sonar_1 board stuck --board sonar_1/sonar"
+    "\n  hera inject nav_1 partition        (a cluster started by hera campaign)",
+    "campaign": "hera campaign train thesis-ch5\n  hera campaign train nemesis --seed 7"
+    "\n  hera campaign train partitions --short",
     "measures": "hera measures track_radius",
     "apps": "hera apps",
     "examples": "hera examples",
-    "replay": "hera replay hera-run/train --out replayed --models e7,e8",
+    "replay": "hera replay hera-run/train --out replayed --models e7,e8 "
+    "--set track_radius.radius=0.57",
     "eval": "hera eval hera-run/train",
+    "import": "hera import erlang-hera logs/2021-05 imported",
     "bench": "hera bench kalman --quick",
     "certs": "hera certs deploy/two_hosts.toml --out certs",
     "start": "start with:\n  hera up train            a cluster, its live view\n"
@@ -132,8 +137,22 @@ def _parser() -> argparse.ArgumentParser:
     dn = _command(sub, "down", "stop a running cluster", HELP_EXAMPLES["down"])
     inj = _command(sub, "inject", "inject a fault into a running cluster", HELP_EXAMPLES["inject"])
     inj.add_argument("node", help="target node")
-    inj.add_argument("fault", help="crash | hang | crash_node | stop | start")
-    inj.add_argument("measure", nargs="?", help="target measure (crash, hang, stop, start)")
+    inj.add_argument(
+        "fault",
+        help="crash | hang | crash_node | stop | start | board | clock | partition | loss | "
+        "delay | reset | heal",
+    )
+    inj.add_argument(
+        "measure",
+        nargs="?",
+        help="the measure (crash, hang, stop, start), the board fault (board: stuck, dropout, "
+        "spikes, bias, disconnect, clear), or the value (clock: s, loss: share, delay: ms)",
+    )
+    inj.add_argument("--board", help="board: the board id, <node>/<board>")
+    inj.add_argument("--for", dest="seconds", type=float, help="board: how long it lasts, s")
+    inj.add_argument("--param", action="append", help="board: a fault parameter KEY=VALUE")
+    inj.add_argument("--peers", help="network faults: only the links to these nodes (a,b)")
+    inj.add_argument("--jitter", type=float, default=0.0, help="delay: +/- this much, ms")
     for s in (st, dn, inj):
         s.add_argument("--run-dir", help="run directory of the cluster (on this host)")
         s.add_argument("--cluster", help="name of the cluster, if several run")
@@ -174,6 +193,15 @@ def _parser() -> argparse.ArgumentParser:
     )
     rp.add_argument("--node", default="replay", help="node name of the outputs")
     rp.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="MODEL.SETTING=VALUE",
+        help="override a model setting (MODEL.SETTING=VALUE) or the world "
+        "(world.KEY=VALUE); repeatable",
+    )
+    rp.add_argument(
         "--start-like",
         metavar="NODE",
         help="start each model at the first sample NODE's live model fused and write "
@@ -206,8 +234,43 @@ def _parser() -> argparse.ArgumentParser:
     )
     ev.add_argument("--plots", help="folder for the PNG plots (default RUN_DIR/eval)")
     ev.add_argument("--no-plots", action="store_true")
-    ev.add_argument("--node", help="node whose models are plotted (default: the first)")
+    ev.add_argument(
+        "--node",
+        help="node(s) whose models are plotted, comma-separated: together (default: the first)",
+    )
+    ev.add_argument(
+        "--reference",
+        metavar="FILE",
+        help="a recording <name>_<node>.csv (with its .columns.json) to score against when "
+        "the run's world has no truth",
+    )
     ev.add_argument("--json", action="store_true", help="print JSON")
+
+    cp = _command(
+        sub,
+        "campaign",
+        "run a fault campaign on a cluster, check what happened, write a report",
+        HELP_EXAMPLES["campaign"],
+    )
+    cp.add_argument("spec", help="cluster spec (TOML file, or an example's name)")
+    cp.add_argument(
+        "campaign", help="campaign file, or a shipped one: thesis-ch5, partitions, nemesis, manual"
+    )
+    cp.add_argument("--run-dir", help="campaign directory (default: a new hera-run/campaign-*)")
+    cp.add_argument("--seed", type=int, help="seed of the random choices (default: a new one)")
+    cp.add_argument("--short", action="store_true", help="the campaign's short version")
+    cp.add_argument(
+        "--attach", action="store_true", help="use the running cluster of SPEC (no network faults)"
+    )
+    im = _command(
+        sub,
+        "import",
+        "convert logs of another format into a run directory (hera replay and eval take it)",
+        HELP_EXAMPLES["import"],
+    )
+    im.add_argument("format", help="the logs' format (the installed applications' importers)")
+    im.add_argument("src", help="folder of the logs")
+    im.add_argument("out", help="the run directory to write (new or empty)")
 
     tools.add_parsers(sub, _command)
 
@@ -222,14 +285,14 @@ def main(argv: list[str] | None = None) -> int:
     command line, spec or input, with one line per problem on stderr)."""
     args = _parser().parse_args(argv)
     try:
-        return _dispatch(args)
+        return _dispatch(args, argv)
     except (LookupError, ValueError, OSError, ImportError) as e:
         for line in str(e).strip().splitlines() or [type(e).__name__]:
             print(f"hera {args.cmd}: {line}", file=sys.stderr)
         return 2
 
 
-def _dispatch(args: argparse.Namespace) -> int:
+def _dispatch(args: argparse.Namespace, argv: list[str] | None = None) -> int:
     if args.cmd == "node":
         from hera.node import run_node
         from hera.preflight import check_spec
@@ -301,6 +364,16 @@ def _dispatch(args: argparse.Namespace) -> int:
         return _replay(args)
     if args.cmd == "eval":
         return _eval(args)
+    if args.cmd == "campaign":
+        from hera.campaign.runner import CampaignRun
+
+        command = " ".join(["hera", *(argv if argv is not None else sys.argv[1:])])
+        run = CampaignRun(
+            args.spec, args.campaign, args.run_dir, args.seed, args.short, args.attach
+        )
+        return run.run(command)
+    if args.cmd == "import":
+        return _import(args)
     if args.cmd == "bench":
         module = importlib.import_module(f"hera.bench.{args.name}")
         return int(module.main(args.rest) or 0)
@@ -499,6 +572,26 @@ def _down_over_the_bus(args: argparse.Namespace) -> int:
 
 
 def _inject(args: argparse.Namespace) -> int:
+    if args.fault in ("board", "clock", "partition", "loss", "delay", "reset", "heal"):
+        from hera.campaign.manual import inject
+
+        run_dir = None if args.connect else find_run_dir(args.run_dir, args.cluster)
+        peers = args.peers.split(",") if args.peers else None
+        with _client(args) as client:
+            reply = inject(
+                client,
+                run_dir,
+                args.node,
+                args.fault,
+                args.measure,
+                args.board,
+                args.seconds,
+                args.param,
+                peers,
+                args.jitter,
+            )
+        print(json.dumps(reply))
+        return 0 if reply.get("ok") else 1
     if args.fault in ("stop", "start"):
         verb, request = args.fault, {"measure": args.measure}
     else:
@@ -518,17 +611,33 @@ def _inject(args: argparse.Namespace) -> int:
 def _replay(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from hera.replay import model_args_from_spec, pick_models, replay
+    from hera.plugins import installed_apps
+    from hera.replay import (
+        apply_overrides,
+        model_args_from_spec,
+        pick_models,
+        replay,
+        with_producers,
+    )
 
-    if args.spec:
-        models = model_args_from_spec(_load(args.spec))
-    else:
-        spec_path = Path(args.recordings) / "cluster.json"
-        models = model_args_from_spec(_load(str(spec_path))) if spec_path.exists() else {}
+    spec_path = Path(args.recordings) / "cluster.json"
+    recorded = _load(str(spec_path)) if spec_path.exists() else None
+    spec = _load(args.spec) if args.spec else recorded
+    models = model_args_from_spec(spec) if spec is not None else {}
     wanted = args.models.split(",") if args.models else None
-    chosen = pick_models(models, wanted)
+    chosen = with_producers(pick_models(models, wanted), models)
     if not chosen:
         raise ValueError("no models to replay: give --models or --spec (or a run dir)")
+    world = None
+    if args.overrides:
+
+        def check_world(w):
+            return [p for app in installed_apps() for p in app.check_world(w)]
+
+        base = recorded.world if recorded is not None else {}
+        chosen, world = apply_overrides(chosen, base, args.overrides, check_world)
+        if not any(o.partition("=")[0].startswith("world.") for o in args.overrides):
+            world = None
     like = None
     if args.start_like:
         from hera.replay import live_schedule
@@ -548,6 +657,8 @@ def _replay(args: argparse.Namespace) -> int:
             progress,
             smooth=args.smooth,
             say=progress.say,
+            world=world,
+            spec=spec if args.spec else None,
         )
     for name, n in counts.items():
         print(f"{name:<20} {n:>7} estimates -> {Path(args.out) / 'measures'}")
@@ -558,7 +669,7 @@ def _eval(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from hera.application import EvalOptions
-    from hera.evaluate import evaluate, format_table, plot, to_json
+    from hera.evaluate import evaluate, format_table, plot, sources, to_json
     from hera.plugins import AppIndex
 
     options = EvalOptions(after=args.after, settle=args.settle)
@@ -566,19 +677,38 @@ def _eval(args: argparse.Namespace) -> int:
     from hera.progress import Progress
 
     with Progress("eval") as progress:
-        results = evaluate(args.run_dir, options, index, progress)
+        results = evaluate(args.run_dir, options, index, args.reference, progress)
     if not results:
         raise ValueError(f"{args.run_dir}: no model outputs to score (no fusion model logged)")
     if args.json:
         print(json.dumps(to_json(results), indent=1))
     else:
-        print(format_table(results))
+        print("\n".join([*sources(results), format_table(results)]))
     if not args.no_plots:
         try:
             out = args.plots or Path(args.run_dir) / "eval"
-            files = plot(args.run_dir, out, args.node, options, index)
+            nodes = args.node.split(",") if args.node else None
+            files = plot(args.run_dir, out, nodes, options, index, args.reference)
             if not args.json:
                 print("plots: " + (", ".join(str(f) for f in files) or "none"))
         except ImportError as e:
             print(f"plots skipped: {e}", file=sys.stderr)
+    return 0
+
+
+def _import(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from hera.plugins import installed_apps
+
+    importers = {f: (app, fn) for app in installed_apps() for f, fn in app.importers().items()}
+    if args.format not in importers:
+        known = ", ".join(f"{f} ({a.name})" for f, (a, _) in sorted(importers.items()))
+        raise ValueError(f"unknown log format {args.format!r}; formats: {known or 'none'}")
+    src, out = Path(args.src), Path(args.out)
+    if not src.is_dir():
+        raise ValueError(f"{src}: no such folder of logs")
+    if out.exists() and any(out.iterdir()):
+        raise ValueError(f"{out}: exists and is not empty; give a new folder")
+    print(importers[args.format][1](src, out))
     return 0

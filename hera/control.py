@@ -14,7 +14,9 @@ Runtime verbs:
   names, or all);
 - ``reload`` ``{"module"}``: load new code and replace the measures it changes
   (:mod:`hera.reload`);
-- ``shutdown``: stop the node (exit 0).
+- ``shutdown``: stop the node (exit 0);
+- ``clock`` ``{"skew_s"?}``: set the offset of the node's wall clock (a host's clock skew,
+  :mod:`hera.wallclock`); without ``skew_s`` only read it.
 
 Every verb that changes something is remembered (the last :data:`EVENTS` of them, with
 their time and outcome) and shown in the node's status (``control_events``).
@@ -37,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 
-from hera import dynamic
+from hera import dynamic, wallclock
 from hera.application import VerbContext
 from hera.measure import ARGS_PREFIX
 
@@ -47,7 +49,17 @@ if TYPE_CHECKING:  # pragma: no cover
 log = logging.getLogger("hera.control")
 
 EXIT_INJECTED_CRASH = 70
-RUNTIME_VERBS = ("status", "start", "stop", "inject", "args", "store", "reload", "shutdown")
+RUNTIME_VERBS = (
+    "status",
+    "start",
+    "stop",
+    "inject",
+    "args",
+    "store",
+    "reload",
+    "shutdown",
+    "clock",
+)
 READ_ONLY = frozenset({"status", "store"})
 EVENTS = 50
 
@@ -137,6 +149,12 @@ class ControlPlane:
         if verb == "shutdown":
             threading.Timer(0.05, node.stop).start()
             return {"stopping": node.name}
+        if verb == "clock":
+            if "skew_s" in request:
+                before = wallclock.set_offset(request["skew_s"])
+                log.warning("clock skew of node %s set to %+.3f s", node.name, wallclock.offset())
+                return {"skew_s": wallclock.offset(), "was_s": before}
+            return {"skew_s": wallclock.offset()}
         handler = self._app_verb(verb)
         ctx = VerbContext(node.name, node.spec.name, node.spec.world, node.resources)
         return dict(handler(request, ctx))

@@ -3,23 +3,34 @@
 For every fusion model of the run's spec (``cluster.json``) with a CSV log in
 ``<run>/measures``, the application the model belongs to (:mod:`hera.application`) gives
 the truth of the run's world, the scores (the columns of the table, with units) and the
-plots. Models of no installed application are listed with their number of estimates. The
-runtime itself knows no application: it only asks them.
+plots. A run whose world has no truth (a real rig, imported logs) is scored against a
+reference series given on the command line (``--reference FILE``, a recording with its
+columns sidecar), else against what the application builds from the run's own recordings
+(self-consistency), and says which. Models of no installed application are listed with
+their number of estimates. The runtime itself knows no application: it only asks them.
 """
 
 from __future__ import annotations
 
 import json
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hera.application import Application, EvalOptions, Metric, Series
+from hera.application import (
+    Application,
+    EvalOptions,
+    Metric,
+    Reference,
+    Series,
+    SeriesTruth,
+    Truth,
+)
 from hera.fusion import spec_models
 from hera.plugins import AppIndex
-from hera.recordings import measures_dir, read_csv
+from hera.recordings import SOURCE_FILE, measures_dir, read_csv
 from hera.spec import ClusterSpec, load_spec
 
 
@@ -31,6 +42,8 @@ class Scored:
     app: Application | None
     label: str
     scores: dict[str, float | None] = field(default_factory=dict)
+    source: str | None = None
+    """What the scores compare with (the simulated world, a reference, self-consistency)."""
 
 
 def run_spec(run_dir: str | Path) -> ClusterSpec:
@@ -65,18 +78,69 @@ def load_outputs(run_dir: str | Path, spec: ClusterSpec | None = None) -> list[S
     return out
 
 
+def recording_folders(run_dir: str | Path) -> list[Path]:
+    """The run dir, then the recordings it was replayed from (its ``replay.json``)."""
+    folders = [Path(run_dir)]
+    src = Path(run_dir) / SOURCE_FILE
+    if src.exists():
+        try:
+            folders.append(Path(json.loads(src.read_text())["recordings"]))
+        except (ValueError, KeyError, TypeError):
+            raise ValueError(
+                f"{src}: not a replay source (expected {{'recordings': path}})"
+            ) from None
+    return folders
+
+
+def read_reference(path: str | Path) -> Series:
+    """A reference series: one recording (``<name>_<node>.csv``) and its columns sidecar;
+    ValueError naming the file when it is not one."""
+    path = Path(path)
+    side = path.with_name(path.name.removesuffix(".csv") + ".columns.json")
+    if not path.exists() or not side.exists():
+        raise ValueError(
+            f"{path}: a reference is a recording <name>_<node>.csv beside its "
+            f"<name>_<node>.columns.json"
+        )
+    meta = json.loads(side.read_text())
+    samples = read_csv(path, meta.get("name", path.stem), meta.get("node", ""))
+    return Series(
+        meta.get("name", path.stem),
+        meta.get("node", ""),
+        tuple(meta["columns"][2:]),
+        [x.t for x in samples],
+        [x.values for x in samples],
+    )
+
+
+def truth_of(
+    app: Application, spec: ClusterSpec, run_dir: str | Path, reference: str | Path | None
+) -> Reference | None:
+    """What ``app``'s outputs of the run are scored against: its world's truth, else the
+    ``reference`` recording, else the application's own reference from the recordings."""
+    truth: Truth | None = app.truth(spec.world)
+    if truth is not None:
+        return Reference(truth, "the simulated world's truth")
+    if reference is not None:
+        return Reference(SeriesTruth(read_reference(reference)), f"reference series {reference}")
+    return app.reference(recording_folders(run_dir), spec.world)
+
+
 def evaluate(
     run_dir: str | Path,
     options: EvalOptions | None = None,
     index: AppIndex | None = None,
+    reference: str | Path | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> list[Scored]:
     """Every model output of the run, scored by its application, in the applications'
-    order (a ladder's rungs in order); ``progress(done, total)`` after each output."""
+    order (a ladder's rungs in order). ``reference``: a recording to score against when
+    the world has no truth (see the module docstring); ``progress(done, total)`` after
+    each output."""
     options = options or EvalOptions()
     spec = run_spec(run_dir)
     index = index or AppIndex()
-    truths: dict[str, Any] = {}
+    refs: dict[str, Reference | None] = {}
     out = []
     outputs = load_outputs(run_dir, spec)
     for i, s in enumerate(outputs):
@@ -84,15 +148,27 @@ def evaluate(
             progress(i, len(outputs))
         app = index.app_of(s.measure)
         scores: dict[str, float | None] = {}
+        source = None
         if app is not None:
-            if app.name not in truths:
-                truths[app.name] = app.truth(spec.world)
-            scores = dict(app.score(s, truths[app.name], options))
-        out.append(Scored(s, app, index.label(s.name, s.measure), scores))
+            if app.name not in refs:
+                refs[app.name] = truth_of(app, spec, run_dir, reference)
+            ref = refs[app.name]
+            scores = dict(app.score(s, ref.truth if ref else None, options))
+            source = ref.source if ref else None
+        out.append(Scored(s, app, index.label(s.name, s.measure), scores, source))
     if progress is not None:
         progress(len(outputs), len(outputs))
     out.sort(key=lambda r: (*index.rank(r.series.measure), r.series.name, r.series.node))
     return out
+
+
+def sources(results: list[Scored]) -> list[str]:
+    """One line per application: what its outputs were scored against."""
+    seen: dict[str, str] = {}
+    for r in results:
+        if r.app is not None:
+            seen.setdefault(r.app.name, r.source or "nothing (no truth, no reference)")
+    return [f"{name}: scored against {src}" for name, src in seen.items()]
 
 
 def metrics_of(results: list[Scored]) -> list[Metric]:
@@ -138,6 +214,7 @@ def to_json(results: list[Scored]) -> list[dict[str, Any]]:
             "application": r.app.name if r.app is not None else None,
             "label": r.label,
             "estimates": len(r.series),
+            "scored_against": r.source,
             **r.scores,
         }
         for r in results
@@ -147,11 +224,13 @@ def to_json(results: list[Scored]) -> list[dict[str, Any]]:
 def plot(
     run_dir: str | Path,
     out_dir: str | Path,
-    node: str | None = None,
+    node: str | Sequence[str] | None = None,
     options: EvalOptions | None = None,
     index: AppIndex | None = None,
+    reference: str | Path | None = None,
 ) -> list[Path]:
-    """Each application's plots of its model outputs on ``node`` (default: the first node
+    """Each application's plots of its model outputs on ``node`` (or several nodes,
+    together: a replay beside the live or an imported original; default: the first node
     with outputs); returns the files written."""
     options = options or EvalOptions()
     index = index or AppIndex()
@@ -159,17 +238,19 @@ def plot(
     series = load_outputs(run_dir, spec)
     if node is None and series:
         node = sorted({s.node for s in series})[0]
+    nodes = [node] if isinstance(node, str) else list(node or ())
     by_app: dict[str, list[Series]] = defaultdict(list)
     apps = {}
     for s in series:
         app = index.app_of(s.measure)
-        if app is not None and s.node == node:
+        if app is not None and s.node in nodes:
             by_app[app.name].append(s)
             apps[app.name] = app
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     files: list[Path] = []
     for name, group in by_app.items():
-        group.sort(key=lambda s: index.rank(s.measure))
-        files.extend(apps[name].plots(group, apps[name].truth(spec.world), out_dir, options))
+        group.sort(key=lambda s: (index.rank(s.measure), nodes.index(s.node)))
+        ref = truth_of(apps[name], spec, run_dir, reference)
+        files.extend(apps[name].plots(group, ref.truth if ref else None, out_dir, options))
     return files

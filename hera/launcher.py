@@ -352,13 +352,14 @@ class Launcher:
         with query:
             verb = str(query.key_expr).rsplit("/", 1)[-1]
             if verb == "down":
-                self.stopping.set()
                 reply = {"ok": True, "stopping": sorted(self.nodes) + sorted(self.routers)}
             elif verb == "status":
                 reply = {"ok": True, **self.state()}
             else:
                 reply = {"ok": False, "error": f"unknown launcher verb {verb!r}: status, down"}
             query.reply(Keys(self.spec.name).launcher(self.id, verb), json.dumps(reply))
+        if verb == "down":  # after the reply: stopping ends with this launcher's routers,
+            self.stopping.set()  # which may be the reply's way back to the tool
 
     def _write_launcher_state(self, force: bool = False) -> None:
         """Write ``launcher.json`` when a process changed (pid, state, restarts) or once a

@@ -36,7 +36,7 @@ from typing import Any
 import zenoh
 
 from hera.args import ArgsStore
-from hera.bus import open_session
+from hera.bus import open_session, with_overrides
 from hera.control import EXIT_INJECTED_CRASH, ControlPlane
 from hera.csvlog import CsvLog
 from hera.datapath import DataPath
@@ -137,6 +137,10 @@ class Node:
         except CredentialsError as e:
             raise FatalStart(str(e)) from None
         me = ", ".join(bus.listen) or "no endpoint (a client)"
+        try:
+            bus = with_overrides(bus, self.name)
+        except ValueError as e:
+            raise FatalStart(str(e)) from None
         try:
             self.session = s = open_session(bus)
         except zenoh.ZError as e:

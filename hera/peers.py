@@ -3,16 +3,21 @@
 A node declares ``alive/<node>``; every node subscribes to ``alive/**`` (with history, so
 it learns who is already up) and keeps the set of live peers and a short log of up/down
 events for the status. A DELETE means "lost connectivity" (ZENOH-NOTES), not "crashed".
+Each event is also logged (``peer <node> up|down``), so a run's logs say when every node
+noticed every other one come and go (fault campaigns measure detection times from them).
 """
 
 from __future__ import annotations
 
+import logging
 import time
 from collections import deque
 
 import zenoh
 
 from hera.keys import Keys
+
+log = logging.getLogger("hera.peers")
 
 
 class Peers:
@@ -34,12 +39,13 @@ class Peers:
         if worker is not None:
             return
         now = time.time()
-        if sample.kind == zenoh.SampleKind.PUT:
+        event = "up" if sample.kind == zenoh.SampleKind.PUT else "down"
+        if event == "up":
             self.up[node] = now
-            self.events.append((now, node, "up"))
         else:
             self.up.pop(node, None)
-            self.events.append((now, node, "down"))
+        self.events.append((now, node, event))
+        log.info("peer %s %s", node, event)
 
     def wait_for(self, expected: set[str], timeout: float) -> None:
         """Block until every node of ``expected`` is up or ``timeout`` s pass: liveliness

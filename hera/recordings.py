@@ -17,6 +17,10 @@ from pathlib import Path
 
 from hera.store import Sample
 
+SOURCE_FILE = "replay.json"
+"""``<out>/replay.json``, written by ``hera replay`` beside its outputs: the recordings it
+ran over (``{"recordings": path}``), where ``hera eval`` finds them for a reference."""
+
 
 class RecordingError(ValueError):
     """A recording that cannot be read; the message names the file and row."""

@@ -2,8 +2,11 @@
 
 Every sample of the models' inputs is fed in measurement-time order (ties broken by name,
 node and seq), exactly as a fusion measure in ``arrival`` mode fuses them, so a replay is
-deterministic and scores like the live run. Outputs are written in the recordings' own
-layout: ``<out>/measures/<model>_<node>.csv``.
+deterministic and scores like the live run. Models fed by other models (an output name
+among their inputs) run after them, on their replayed outputs. Outputs are written in the
+recordings' own layout: ``<out>/measures/<model>_<node>.csv``, with each model's diagnostic
+counters beside them. ``--set MODEL.SETTING=VALUE`` / ``world.KEY=VALUE`` override a model
+setting or the world (checked against what the model declares).
 """
 
 from __future__ import annotations
@@ -11,14 +14,22 @@ from __future__ import annotations
 import json
 import shutil
 from collections.abc import Callable, Iterable, Mapping
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from hera.fusion import FusionMeasure, model_counters, model_outputs, spec_models
+from hera.fusion import FusionMeasure, model_counters, model_outputs, spec_models, time_order
 from hera.plugins import find_measure
-from hera.recordings import CsvWriter, read_recordings
+from hera.recordings import SOURCE_FILE, CsvWriter, read_recordings
+from hera.schema import did_you_mean
 from hera.smoothing import NotSmoothable, SmoothedRun, smoothed_dir
-from hera.spec import ClusterSpec
+from hera.spec import ClusterSpec, load_spec
+from hera.store import Sample
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
 
 
 def model_args_from_spec(spec: ClusterSpec) -> dict[str, tuple[str, dict[str, Any]]]:
@@ -64,6 +75,25 @@ def live_schedule(recordings: str | Path, node: str) -> dict[str, tuple[float, s
     return out
 
 
+def dependency_order(
+    instances: Mapping[str, Any],
+) -> list[str]:
+    """The models' names in an order where each comes after every model whose output it
+    takes as input (``bilateration`` before a model with input ``bilateration``);
+    ValueError naming the models of a cycle."""
+    produced = set(instances)
+    needs = {n: {i for i in m.inputs if i in produced and i != n} for n, m in instances.items()}
+    order: list[str] = []
+    while needs:
+        ready = sorted(n for n, deps in needs.items() if not deps - set(order))
+        if not ready:
+            raise ValueError(f"models feed each other in a cycle: {', '.join(sorted(needs))}")
+        order.extend(ready)
+        for n in ready:
+            del needs[n]
+    return order
+
+
 def replay(
     recordings: str | Path,
     out: str | Path,
@@ -73,9 +103,15 @@ def replay(
     progress: Callable[[int, int], None] | None = None,
     smooth: bool = False,
     say: Callable[[str], None] | None = None,
+    world: Mapping[str, Any] | None = None,
+    spec: ClusterSpec | None = None,
 ) -> dict[str, int]:
     """Run each model (name -> (measure use, model params)) over ``recordings``; write its
     estimates to ``out``; return the number of estimates per model.
+
+    Chained models run in dependency order in this one call: a model whose inputs include
+    another replayed model's output takes that model's replayed estimates (published by
+    ``node``), not the recorded ones of the same name.
 
     ``like`` (model name -> (start, instants), see :func:`live_schedule`) makes a replay of
     a live node: each model starts at the live model's first sample and writes estimates
@@ -84,6 +120,12 @@ def replay(
 
     ``smooth``: also write each model's RTS-smoothed estimates (see :mod:`hera.smoothing`);
     a model that cannot be smoothed is said so through ``say`` (one line) and left out.
+
+    ``world``: the world table written to ``out/cluster.json`` (default: the recordings').
+    ``spec``: the spec the models come from when it is not the recordings' (``--spec``):
+    written to ``out/cluster.json`` with the recordings' world, so that ``hera eval`` knows
+    the models by the names this spec gives them (not when ``out`` is the recordings'
+    folder: its own spec stays).
     """
     instances = {}
     for name, (use, params) in models.items():
@@ -92,17 +134,27 @@ def replay(
             raise ValueError(f"{use!r} is not a fusion model: it cannot be replayed")
         instances[name] = cls.make_model(params, f"model {name!r} ({use})")
     say = say or (lambda _text: None)
+    order = dependency_order(instances)
     inputs = {n for m in instances.values() for n in m.inputs}
-    samples = read_recordings(recordings, inputs, known=inputs)
+    recorded = inputs - set(instances)
+    known = inputs | set(instances)
+    samples = read_recordings(recordings, recorded, known=known) if recorded else []
+    produced: dict[str, list[Sample]] = {}
     counts = {}
     total, fed = len(samples) * len(instances), 0
-    for name, model in instances.items():
+    for name in order:
+        model = instances[name]
         writer = CsvWriter(out, name, node, model.columns)
         t_start, instants = (like or {}).get(name, (float("-inf"), None))
         t_start -= CSV_RESOLUTION_S  # the recordings' times are rounded to the microsecond
+        feed = samples
+        upstream = [produced[i] for i in model.inputs if i in produced]
+        if upstream:
+            feed = time_order([*samples, *(s for u in upstream for s in u)])
+        outputs: list[Sample] = []
         smoother = _smoother(model, name, say) if smooth else None
         try:
-            for i, s in enumerate(samples):
+            for i, s in enumerate(feed):
                 if progress is not None and i % 5000 == 0:
                     progress(fed + i, total)
                 if s.t < t_start or s.name not in model.inputs:
@@ -114,11 +166,15 @@ def replay(
                 for t, values in rows:
                     if instants is None or round(t * 1e6) in instants:
                         writer.write(t, values)
+                        outputs.append(
+                            Sample(name, node, writer.seq, t, 0.0, 0.0, tuple(map(float, values)))
+                        )
                         if smoother is not None:
                             smoother.mark(t)
         finally:
             writer.close()
         fed += len(samples)
+        produced[name] = outputs
         counts[name] = writer.seq
         write_counters(out, name, node, model_counters(model))
         if smoother is not None:
@@ -126,12 +182,15 @@ def replay(
             say(f"{name}: {written} smoothed estimates -> {smoothed_dir(out) / 'measures'}")
     if progress is not None:
         progress(total, total)
-    src = Path(recordings) / "cluster.json"
-    if src.exists() and Path(out).resolve() != Path(recordings).resolve():
-        shutil.copy(src, Path(out) / "cluster.json")  # the world, for hera eval
-    if src.exists() and smooth and smoothed_dir(out).exists():
-        shutil.copy(src, smoothed_dir(out) / "cluster.json")
-    return counts
+    _write_spec(recordings, out, world, spec)
+    written_spec = Path(out) / "cluster.json"
+    spec_file = written_spec if written_spec.exists() else Path(recordings) / "cluster.json"
+    if spec_file.exists() and smooth and smoothed_dir(out).exists():
+        shutil.copy(spec_file, smoothed_dir(out) / "cluster.json")  # the world, for hera eval
+    if Path(out).resolve() != Path(recordings).resolve():
+        source = {"recordings": str(Path(recordings).resolve())}
+        (Path(out) / SOURCE_FILE).write_text(json.dumps(source))
+    return {n: counts[n] for n in models}
 
 
 def _smoother(model: Any, name: str, say: Callable[[str], None]) -> SmoothedRun | None:
@@ -143,11 +202,124 @@ def _smoother(model: Any, name: str, say: Callable[[str], None]) -> SmoothedRun 
         return None
 
 
+def _write_spec(
+    recordings: str | Path,
+    out: str | Path,
+    world: Mapping[str, Any] | None,
+    spec: ClusterSpec | None = None,
+) -> None:
+    """Copy the recordings' ``cluster.json`` (the world, for hera eval) to ``out``, with
+    ``world`` as its world table when given; with ``spec``, write that spec (the models'
+    names) with the recordings' world (its own when the recordings have none)."""
+    src = Path(recordings) / "cluster.json"
+    same = Path(out).resolve() == Path(recordings).resolve()
+    recorded = load_spec(src) if src.exists() else None
+    if spec is not None and not same:
+        base = spec
+        if world is None and recorded is not None:
+            world = recorded.world
+    elif recorded is None or (same and world is None):
+        return
+    else:
+        base = recorded
+    if world is None and base is recorded:
+        shutil.copy(src, Path(out) / "cluster.json")
+        return
+    new = replace(base, world=dict(world if world is not None else base.world))
+    (Path(out) / "cluster.json").write_text(new.to_json())
+
+
+def parse_override(text: str) -> tuple[str, str, Any]:
+    """``(target, key, value)`` of an override ``TARGET.KEY=VALUE`` (``--set``): the value
+    is read as a TOML value (``0.57``, ``true``, ``[0, 1]``, ``"text"``), else kept as the
+    bare string. ValueError saying what is wrong."""
+    lhs, eq, rhs = text.partition("=")
+    target, dot, key = lhs.strip().rpartition(".")
+    if not eq or not dot or not target or not key:
+        raise ValueError(f"--set {text!r}: expected MODEL.SETTING=VALUE or world.KEY=VALUE")
+    try:
+        value = tomllib.loads(f"v = {rhs.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = rhs.strip()
+    return target, key.strip(), value
+
+
+def apply_overrides(
+    models: Mapping[str, tuple[str, Mapping[str, Any]]],
+    world: Mapping[str, Any],
+    overrides: Iterable[str],
+    check_world: Any = None,
+) -> tuple[dict[str, tuple[str, dict[str, Any]]], dict[str, Any]]:
+    """The models and world with the ``--set`` overrides applied.
+
+    ``MODEL.SETTING=VALUE`` sets a model setting of every chosen model that MODEL names
+    (publication name, use or alias, as :func:`pick_models`), checked against the settings
+    the model declares; ``world.KEY=VALUE`` sets a key of the world table, checked by
+    ``check_world(world) -> [problems]`` when given. ValueError, one sentence, naming the
+    override and what is wrong."""
+    out = {n: (use, dict(params)) for n, (use, params) in models.items()}
+    new_world = dict(world)
+    for text in overrides:
+        target, key, value = parse_override(text)
+        if target == "world":
+            new_world[key] = value
+            problems = check_world(new_world) if check_world is not None else []
+            if problems:
+                raise ValueError(f"--set {text!r}: {problems[0]}")
+            continue
+        try:
+            hits = pick_models(out, [target])
+        except ValueError:
+            hits = {}
+        hits = {n: v for n, v in hits.items() if n in out}
+        if not hits:
+            raise ValueError(
+                f"--set {text!r}: no model {target!r} among the replayed ones "
+                f"({', '.join(out) or 'none'})"
+            )
+        for name, (use, params) in hits.items():
+            cls = find_measure(use)
+            known = cls.settings() if issubclass(cls, FusionMeasure) else None
+            if known is not None and key not in known:
+                raise ValueError(
+                    f"--set {text!r}: model {name!r} has no setting {key!r}"
+                    f"{did_you_mean(key, known)}; its settings: {', '.join(known)}"
+                )
+            params[key] = value
+            if issubclass(cls, FusionMeasure):
+                try:
+                    cls.make_model(params, f"model {name!r}")
+                except ValueError as e:
+                    raise ValueError(f"--set {text!r}: {e}") from None
+    return out, new_world
+
+
 def write_counters(out: str | Path, name: str, node: str, counters: Mapping[str, int]) -> Path:
     """Write a model's diagnostic counters to ``<out>/measures/<name>_<node>.counters.json``."""
     path = Path(out) / "measures" / f"{name}_{node}.counters.json"
     path.write_text(json.dumps(dict(counters), indent=1))
     return path
+
+
+def with_producers(
+    chosen: Mapping[str, tuple[str, Mapping[str, Any]]],
+    available: Mapping[str, tuple[str, Mapping[str, Any]]],
+) -> dict[str, tuple[str, Mapping[str, Any]]]:
+    """``chosen`` plus every model of ``available`` whose output a chosen model takes as
+    input, recursively (replaying e5 replays the bilateration that feeds it)."""
+    out = dict(chosen)
+    todo = list(out)
+    while todo:
+        name = todo.pop()
+        use, params = out[name]
+        cls = find_measure(use)
+        if not issubclass(cls, FusionMeasure):
+            continue
+        for i in cls.make_model(params, f"model {name!r} ({use})").inputs:
+            if i in available and i not in out:
+                out[i] = available[i]
+                todo.append(i)
+    return out
 
 
 def pick_models(all_models: Mapping[str, tuple[str, dict]], wanted: Iterable[str] | None):

@@ -22,6 +22,7 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
+from hera import wallclock
 from hera.wire import Message
 
 
@@ -79,7 +80,7 @@ class Store:
         a node of the cluster) or ``too_many_names`` (its node's quota of names is full)."""
         mono = time.monotonic() if arrival is None else arrival
         sample = Sample(
-            name, node, msg.seq, msg.t, mono, time.time(), msg.values, msg.grant, msg.inc
+            name, node, msg.seq, msg.t, mono, wallclock.now(), msg.values, msg.grant, msg.inc
         )
         with self._cond:
             per_name = self._data.get(name)

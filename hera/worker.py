@@ -19,6 +19,7 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from hera import wallclock
 from hera.measure import Measure, MeasureContext, Reading, own_keys
 
 log = logging.getLogger("hera.worker")
@@ -238,7 +239,7 @@ class Worker:
         self.step_started = time.monotonic()
         if self.first_step_at is None:
             self.first_step_at = self.step_started
-        t_wall = time.time()
+        t_wall = wallclock.now()
         fault, self._fault = self._fault, None
         if fault == "crash":
             raise InjectedFault(f"crash injected into {self.spec.name}")

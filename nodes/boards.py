@@ -17,8 +17,11 @@ Which driver a board gets:
 - else the simulator, built from the world table.
 
 Board seed of a simulator: ``stable_seed(kind, node, board, seed)`` where ``seed`` is the
-measure arg ``seed`` if given, else ``ctx.seed``; the first measure to open a board fixes
-it, so measures sharing a board should agree on it (true by default: the spec's seeds).
+measure arg ``seed`` if given, else ``ctx.seed`` (and the world's ``seed``, when the world
+table has one, is mixed in: one key draws a new rig); the first measure to open a board
+fixes it, so measures sharing a board should agree on it (true by default: the spec's
+seeds). A simulator's error-model defaults are its world's (``Scenario.nav_model`` /
+``sonar_model``, e.g. a preset of real-rig imperfections), under the measure's ``model``.
 """
 
 from __future__ import annotations
@@ -48,6 +51,10 @@ Board = Any
 :mod:`hera.nodes.driver`."""
 
 RESOURCE = "hera.nodes.boards"
+CLOCK = "hera.nodes.clock"
+"""Resource key of a clock (``() -> epoch s``) the node's simulated boards read instead of
+the wall clock, and with which a simulated sonar does not wait out its ping: an offline
+simulation's virtual time (:mod:`hera.nodes.offline`)."""
 
 BOARD_ARGS = (
     Setting("model", TABLE, {}, "error model of the simulated board (its model's fields)"),
@@ -147,7 +154,19 @@ def _seed(ctx: MeasureContext, args: Mapping[str, Any], kind: str, name: str) ->
     seed = ctx.seed if seed is None else seed
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise ValueError(f"seed must be an integer, got {seed!r}")
-    return stable_seed(kind, ctx.node, name, seed)
+    world_seed = ctx.world.get("seed")
+    if world_seed is None:
+        return stable_seed(kind, ctx.node, name, seed)
+    if isinstance(world_seed, bool) or not isinstance(world_seed, int):
+        raise ValueError(f"world 'seed' must be an integer, got {world_seed!r}")
+    return stable_seed(kind, ctx.node, name, seed, world_seed)
+
+
+def _clock(ctx: MeasureContext, **virtual: Any) -> dict[str, Any]:
+    """Keyword arguments that put a simulated board on the node's :data:`CLOCK`, if any
+    (with ``virtual``, the board's settings for virtual time)."""
+    clock = ctx.resources.get(CLOCK)
+    return {} if clock is None else {"clock": clock, **virtual}
 
 
 def load_driver(args: Mapping[str, Any], protocol: type, what: str) -> Board | None:
@@ -181,14 +200,18 @@ def open_nav(ctx: MeasureContext, args: Mapping[str, Any]) -> NavDriver:
             if not isinstance(b, NavDriver):
                 raise ValueError(f"board {bid!r} is not a Pmod NAV driver")
             return b
-        board = load_driver(args, NavDriver, "NavDriver") or SimNavBoard(
-            bid,
-            make_scenario(ctx.world),
-            environment(ctx.world),
-            epoch_of(ctx.world),
-            NavModel.from_args(args.get("model")),
-            _seed(ctx, args, "pmod_nav", name),
-        )
+        board = load_driver(args, NavDriver, "NavDriver")
+        if board is None:
+            scenario = make_scenario(ctx.world)
+            board = SimNavBoard(
+                bid,
+                scenario,
+                environment(ctx.world),
+                epoch_of(ctx.world),
+                NavModel.from_args({**scenario.nav_model, **(args.get("model") or {})}),
+                _seed(ctx, args, "pmod_nav", name),
+                **_clock(ctx),
+            )
         return boards.register(board, bid)
 
 
@@ -233,7 +256,8 @@ def open_sonar(ctx: MeasureContext, args: Mapping[str, Any]) -> SonarDriver:
         real = load_driver(args, SonarDriver, "SonarDriver")
         if real is not None:
             return boards.register(real, bid)
-        table = dict(args.get("model") or {})
+        scenario = make_scenario(ctx.world)
+        table = {**scenario.sonar_model, **(args.get("model") or {})}
         for key in ("ping_ms", "half_angle_deg"):
             if args.get(key) is not None:
                 table[key] = args[key]
@@ -247,7 +271,7 @@ def open_sonar(ctx: MeasureContext, args: Mapping[str, Any]) -> SonarDriver:
         board = SimMaxSonar(
             bid,
             bid,
-            make_scenario(ctx.world),
+            scenario,
             epoch_of(ctx.world),
             sonar_mount(ctx, args),
             model,
@@ -255,5 +279,6 @@ def open_sonar(ctx: MeasureContext, args: Mapping[str, Any]) -> SonarDriver:
             air=air,
             fire_log=str(fire_log) if fire_log else None,
             node=ctx.node,
+            **_clock(ctx, block=False),
         )
         return boards.register(board, bid)

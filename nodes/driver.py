@@ -17,6 +17,9 @@ Optional protocols, for what only a simulated board has: :class:`SimulatedBoard`
 state of what it senses, for recording ground truth) and :class:`SimulatedSonar` (+ the true
 range). Measures use them when the board offers them and work without them.
 
+Times: a driver stamps its readings with the node's wall clock (:mod:`hera.wallclock`,
+``time.time()`` unless a clock skew is injected).
+
 Errors: a disconnected board raises :class:`BoardDisconnected` (an ``OSError``, as an I2C or
 UART error would); a reading that is simply missing this time raises :class:`NoReading`
 (measures answer "nothing this step").
@@ -24,11 +27,11 @@ UART error would); a reading that is simply missing this time raises :class:`NoR
 
 from __future__ import annotations
 
-import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
+from hera import wallclock
 from hera.nodes.geometry import Vec3
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -154,7 +157,7 @@ class NavDriverBase(ABC):
     def read_baro(self) -> float: ...
 
     def read_imu(self, mag: bool = True) -> ImuSample:
-        t = time.time()
+        t = wallclock.now()
         return ImuSample(t, self.read_acc(), self.read_gyro(), self.read_mag() if mag else None)
 
 
@@ -165,5 +168,5 @@ class SonarDriverBase(ABC):
     def read_range(self) -> int: ...
 
     def read_sample(self, grant: Any = None) -> RangeSample:
-        t = time.time() if grant is None else grant.check_at_trigger(time.time).wall
+        t = wallclock.now() if grant is None else grant.check_at_trigger(wallclock.now).wall
         return RangeSample(t, self.read_range())  # read_range triggers the ping

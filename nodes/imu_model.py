@@ -4,14 +4,15 @@ Sources of every default: the README, "Simulated boards and their error models".
 
 Reading models (board frame, see :mod:`hera.nodes.driver`):
 
-- accelerometer (g): ``a = (1 + s_a) * (R_m^T R^T (acc + g_up)) / G + b_a + n_a + v_a``;
+- accelerometer (g): ``a = (1 + s_a) * (R_m^T R^T (acc + g_up)) / G + b_a + n_a + v_a``
+  (+ ``acc_run_bias`` while the board is not held still for a calibration);
 - gyroscope (deg/s): ``w = (1 + s_g) * deg(R_m^T omega) + b_g + walk(t) + n_g + v_g``;
 - magnetometer (gauss): ``m = S R_m^T R^T B_earth + h + n_m`` (soft iron S, hard iron h);
 - barometer (hPa): ``p = p_ISA(altitude + z) + b_p + n_p``;
 
 with R the body orientation, R_m the mounting rotation of the board on the body (tilt,
 thesis app. B fig. B.1), s scale errors, b constant biases, walk a random walk, n white noise,
-v the vehicle's vibration (scenario).
+v the vehicle's vibration (scenario). A read fails (no reading) with ``miss_prob``.
 """
 
 from __future__ import annotations
@@ -44,6 +45,10 @@ class NavModel:
     gyro_drift: float = 0.01  # random walk of the bias, deg/s per sqrt(s)
     gyro_scale: Vec3 | None = None
     gyro_scale_sigma: float = 0.003  # thesis ch. 6.4: the gyro alone converged to the true omega
+    # Bias that differs between the still calibration and the run (g): warm-up, a
+    # calibration spot not level with the track; the calibration cannot see it.
+    acc_run_bias: Vec3 | None = None
+    acc_run_bias_sigma: float = 0.0
     # Magnetometer (gauss).
     mag_noise: float = 0.003
     hard_iron: Vec3 = (0.12, -0.2, 0.08)
@@ -55,6 +60,8 @@ class NavModel:
     tilt_roll_deg: float = 0.0
     tilt_pitch_deg: float = 5.0
     tilt_yaw_deg: float = 0.0
+    # Readings the board fails to deliver (a busy bus, a slow board): probability per read.
+    miss_prob: float = 0.0
 
     @classmethod
     def from_args(cls, table: Mapping[str, Any] | None) -> NavModel:
@@ -72,7 +79,14 @@ class NavModel:
                 if len(rows) != 3:
                     raise ValueError("soft_iron must be a 3x3 matrix (list of 3 rows)")
                 out[key] = rows
-            elif key in ("acc_bias", "acc_scale", "gyro_bias", "gyro_scale", "hard_iron"):
+            elif key in (
+                "acc_bias",
+                "acc_scale",
+                "acc_run_bias",
+                "gyro_bias",
+                "gyro_scale",
+                "hard_iron",
+            ):
                 out[key] = None if value is None else gm.vec3(value, key)
             else:
                 try:
@@ -84,6 +98,8 @@ class NavModel:
                     and out[key] < 0
                 ):
                     raise ValueError(f"NAV model {key!r} must be finite and >= 0, got {value!r}")
+        if not 0.0 <= out.get("miss_prob", 0.0) < 1.0:
+            raise ValueError(f"NAV model 'miss_prob' must be in [0, 1), got {out['miss_prob']!r}")
         return replace(cls(), **out)
 
     @property

@@ -15,8 +15,9 @@ from contextlib import contextmanager
 from dataclasses import replace
 from typing import Any
 
+from hera import wallclock
 from hera.nodes import geometry as gm
-from hera.nodes.driver import ImuSample
+from hera.nodes.driver import ImuSample, NoReading
 from hera.nodes.fault_model import FaultState
 from hera.nodes.geometry import Vec3
 from hera.nodes.imu_model import NavModel, ideal_acc, ideal_baro, ideal_gyro, ideal_mag
@@ -27,8 +28,10 @@ _AXES = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
 
 
 class SimNavBoard:
-    """Simulated Pmod NAV. ``clock`` gives the epoch time of each reading (default
-    ``time.time``); readings are a pure function of (seed, scenario, reading times)."""
+    """Simulated Pmod NAV. ``clock`` gives the true epoch time of each reading (default
+    ``time.time``); readings are a pure function of (seed, scenario, reading times).
+    ``read_imu`` stamps its sample with the node's wall clock (:mod:`hera.wallclock`: the
+    reading time plus any injected clock skew)."""
 
     kind = "pmod_nav"
     sensors = {"acc": 3, "gyro": 3, "mag": 3, "baro": 1}
@@ -53,6 +56,9 @@ class SimNavBoard:
         self.acc_scale = self._const(model.acc_scale, "acc_scale", model.acc_scale_sigma, 0.0)
         self.gyro_bias = self._const(model.gyro_bias, "gyro_bias", model.gyro_bias_sigma, 0.0)
         self.gyro_scale = self._const(model.gyro_scale, "gyro_scale", model.gyro_scale_sigma, 0.0)
+        self.acc_run_bias = self._const(
+            model.acc_run_bias, "acc_run_bias", model.acc_run_bias_sigma, 0.0
+        )
         self.walks = [RandomWalk(self.seed, f"gyro{i}", model.gyro_drift) for i in range(3)]
         self.faults = FaultState(self.sensors, fields=("mag",))
         self.reads = 0
@@ -136,11 +142,14 @@ class SimNavBoard:
 
     def read_imu(self, mag: bool = True) -> ImuSample:
         t = self.clock()
+        if self.model.miss_prob and self.rand.rng("miss", t).random() < self.model.miss_prob:
+            raise NoReading(f"{self.id}: no reading (simulated miss)")
         m, held = self.motion(t)
         acc = self._read("acc", t, m, held)
         gyro = self._read("gyro", t, m, held)
         field = self._read("mag", t, m, held) if mag else None
-        return ImuSample(t, acc, gyro, field)  # type: ignore[arg-type]
+        # the world is sensed at the true time; the reading is stamped with the node's clock
+        return ImuSample(t + wallclock.offset(), acc, gyro, field)  # type: ignore[arg-type]
 
     # -- models ------------------------------------------------------------------------------
     def _read(self, sensor: str, t: float, m: Motion, held: bool) -> tuple[float, ...]:
@@ -150,9 +159,11 @@ class SimNavBoard:
         if sensor == "acc":
             a = ideal_acc(m, self.mount)
             vib = 0.0 if held else self.scenario.vibration_acc / G
+            run = (0.0, 0.0, 0.0) if held else self.acc_run_bias
             vals: tuple[float, ...] = tuple(
                 (1.0 + self.acc_scale[i]) * a[i]
                 + self.acc_bias[i]
+                + run[i]
                 + rng.gauss(0.0, md.acc_noise)
                 + (rng.gauss(0.0, vib) if vib else 0.0)
                 for i in range(3)

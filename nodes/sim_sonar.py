@@ -5,6 +5,12 @@ It implements :class:`hera.nodes.driver.SonarDriver`. Each reading is one ping t
 that long per reading). The ping is announced on the group's :class:`~hera.nodes.air.Air`;
 if another sonar of the group sounded during it, the reading is corrupted (see
 :func:`corrupted_range`) and the sample says ``crosstalk=True``.
+
+``fire_log`` (a path) audits the real trigger times: one line per ping, written at the
+trigger, ``start end node epoch token deadline`` with ``start`` the clock reading of the
+trigger-time check and ``end = start + ping`` (a stopped process does not prolong a sound)
+on the sync clock (:mod:`hera.sync.clock`, one clock for every process of a host), and the
+grant it sounded under (``-`` when not synchronised): its epoch, token and lease deadline.
 """
 
 from __future__ import annotations
@@ -17,13 +23,15 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from hera import wallclock
 from hera.nodes import geometry as gm
 from hera.nodes.air import Air, Ping
 from hera.nodes.driver import RangeSample
 from hera.nodes.fault_model import FaultState
 from hera.nodes.noise import KeyedRandom
-from hera.nodes.sonar_model import INCH, SonarModel, nearest_surface, to_inches
+from hera.nodes.sonar_model import INCH, SonarModel, echo_range, nearest_surface, to_inches
 from hera.nodes.world import Motion, Scenario, SonarMount, State, Target, state_at, state_of
+from hera.sync import clock as sync_clock
 
 
 def corrupted_range(
@@ -115,21 +123,25 @@ class SimMaxSonar:
         ``SlotLost`` from it propagates (no ping)."""
         with self._lock:
             ping_s = self.model.ping_ms / 1000.0
-            t = self.clock() if grant is None else grant.check_at_trigger(self.clock, ping_s).wall
+            if grant is None:
+                t, start = self.clock(), sync_clock.now()
+            else:
+                trigger = grant.check_at_trigger(self.clock, ping_s)
+                t, start = trigger.wall, trigger.clock
             rng = self.rand.rng("range", t)
             self.faults.before_read("range", rng)
             ping = Ping(self.sender, t, t + ping_s, self.mount.position)
             mono0 = time.monotonic()
+            self._log_firing(start, start + ping_s, grant)
             if self.air is not None:
                 self.air.announce(ping, grant)
             if self.block:
                 while (left := mono0 + ping_s - time.monotonic()) > 0:
                     time.sleep(left)
-            mono1 = time.monotonic() if self.block else mono0 + ping_s
-            self._log_firing(mono0, mono1)
             m = self._motion(t)
             true_m = nearest_surface(self.mount, self.half_angle, m, self.target)
-            inches = to_inches(true_m, self.model, rng)
+            heard = echo_range(true_m, self._clutter, self.model, rng)
+            inches = to_inches(heard, self.model, rng)
             others = self.air.overlapping(ping) if self.air is not None else []
             if others:
                 first = min(others, key=lambda p: p.start)
@@ -139,14 +151,27 @@ class SimMaxSonar:
             self.pings += 1
             value = self.faults.after_read("range", (float(inches),), rng)[0]
             inches = max(0, round(value))
-            return RangeSample(t, inches, bool(others))
+            # the world is sensed at the true time; the reading is stamped with the node's clock
+            return RangeSample(t + wallclock.offset(), inches, bool(others))
 
-    def _log_firing(self, start: float, end: float) -> None:
+    def _clutter(self, u: float) -> float | None:
+        """The range of the first clutter echo (far side, multipath) at ``u``, if any."""
+        return self.scenario.clutter_range(self.mount, self.half_angle, u)
+
+    def _log_firing(self, start: float, end: float, grant: Any) -> None:
+        """Append ``start end node epoch token deadline`` to the fire log (the audit of real
+        trigger times; ``-`` for the grant fields of an unsynchronised ping), at the trigger,
+        before the ping, so that a process killed while it sounds leaves its line."""
         if self.fire_log is None:
             return
+        if grant is None:
+            label = "- - -"
+        else:
+            label = f"{int(grant.epoch)} {int(grant.token)} {float(grant.deadline):.6f}"
+        line = f"{start:.6f} {end:.6f} {self.node or self.sender} {label}\n"
         self.fire_log.parent.mkdir(parents=True, exist_ok=True)
         with open(self.fire_log, "a") as f:
-            f.write(f"{start:.6f} {end:.6f} {self.node or self.sender}\n")
+            f.write(line)
 
     def describe(self) -> dict[str, Any]:
         """JSON-able status for ``list_boards``."""

@@ -3,7 +3,8 @@
 A ping returns the distance to the **nearest surface** of the target inside the beam (a cone
 of half-angle ``half_angle_deg`` around the pointing direction), plus white noise, rounded to
 whole inches and clamped to the sensor's limits; with no target in the beam it returns the
-background (or the maximum range).
+background (or the maximum range). A real rig adds missed pings, bounces and echoes of the
+track's far side (:func:`echo_range`, all off by default).
 Sources of every default: the README, "Simulated boards and their error models".
 """
 
@@ -11,7 +12,7 @@ from __future__ import annotations
 
 import math
 import random
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
@@ -33,6 +34,11 @@ class SonarModel:
     ping_ms: float = 49.0  # data sheet: a reading every 49 ms (20 Hz)
     background_m: float | None = None  # what the beam hits when the target is not in it
     speed_of_sound: float = 343.0  # m/s in air at 20 C
+    # A real rig's echoes (probabilities per ping):
+    miss_prob: float = 0.0  # no echo heard at all: reads the maximum range
+    multipath_prob: float = 0.0  # the target's echo came back by a longer path (a bounce)
+    multipath_max_m: float = 1.0  # ... longer by up to this much (uniform from 0.1 m)
+    clutter_prob: float = 0.0  # target out of the beam: an echo of the far side of the track
 
     @classmethod
     def from_args(cls, table: Mapping[str, Any] | None) -> SonarModel:
@@ -59,6 +65,9 @@ class SonarModel:
             raise ValueError("sonar model min_in must be < max_in")
         if model.ping_ms <= 0 or model.speed_of_sound <= 0:
             raise ValueError("sonar model ping_ms and speed_of_sound must be > 0")
+        for key in ("miss_prob", "multipath_prob", "clutter_prob"):
+            if not getattr(model, key) <= 1.0:
+                raise ValueError(f"sonar model {key!r} must be a probability, got {table[key]!r}")
         return model
 
 
@@ -94,6 +103,28 @@ def nearest_surface(
             r = dist - target.radius
             best = r if best is None or r < best else best
     return best
+
+
+def echo_range(
+    true_m: float | None,
+    clutter: Callable[[float], float | None],
+    model: SonarModel,
+    rng: random.Random,
+) -> float | None:
+    """The range (m) a ping's first echo gives on a real rig, None for no echo: with
+    ``miss_prob`` nothing; with the target in the beam (``true_m``), its surface, or with
+    ``multipath_prob`` a bounce 0.1 .. ``multipath_max_m`` m longer; without, with
+    ``clutter_prob`` ``clutter(u)`` (a fixed surface along the ray at u in [-1, 1] of the
+    beam). Draws nothing when every probability is 0 (the noise stays as it was)."""
+    if model.miss_prob and rng.random() < model.miss_prob:
+        return None
+    if true_m is None:
+        if model.clutter_prob and rng.random() < model.clutter_prob:
+            return clutter(rng.uniform(-1.0, 1.0))
+        return None
+    if model.multipath_prob and rng.random() < model.multipath_prob:
+        return true_m + rng.uniform(0.1, max(0.1, model.multipath_max_m))
+    return true_m
 
 
 def to_inches(range_m: float | None, model: SonarModel, rng: random.Random) -> int:

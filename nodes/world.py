@@ -19,6 +19,11 @@ Scenario parameters (all optional, SI units, angles in rad unless the key says `
 - ``still``: ``position`` [x, y, z], ``yaw``;
 - ``train`` (thesis ch. 6.1): ``center`` [x, y], ``radius`` (0.6 m), ``omega`` (0.84 rad/s,
   positive = counter-clockwise), ``phase`` (start angle, 0), ``height`` (0);
+  ``out_of_round`` (0 m) and ``round_phase_deg`` (0): rails r(theta) = radius + out_of_round
+  cos(2 (theta - round_phase)); ``rest_phase_deg`` (0): where the train stands when "placed
+  at 0 deg" for calibration; ``gauge`` (0.045 m) between the rails; ``tilt_deg`` (0) and
+  ``tilt_axis_deg`` (0): a table that is not level (see :class:`Train`);
+- ``train_rough`` (:mod:`hera.nodes.rough`): the train with a real rig's imperfections;
 - ``rail`` (thesis ch. 3.2/3.4, fig. A.1): ``start`` [x, y, z], ``axis`` [x, y, z],
   ``length`` (1.1 m), ``period`` (8 s) - back and forth ``start -> start + length * axis``;
 - ``hand`` (thesis app. D): ``center``, ``period`` (1.25 s), ``amplitude`` (4 m/s^2, of the
@@ -163,9 +168,19 @@ class Scenario:
     """Std of the vibration the vehicle adds to an accelerometer (m/s^2, white)."""
     vibration_gyro: float = 0.0
     """Std of the vibration the vehicle adds to a gyroscope (rad/s, white)."""
+    nav_model: Mapping[str, Any] = {}
+    """Defaults of the NAV error model of the boards in this world (``NavModel`` fields; a
+    measure's ``model`` arg overrides them): what a preset of real-rig imperfections sets."""
+    sonar_model: Mapping[str, Any] = {}
+    """Defaults of the sonar error model of the boards in this world (``SonarModel``)."""
 
     def motion(self, tau: float) -> Motion:
         raise NotImplementedError
+
+    def clutter_range(self, mount: SonarMount, half_angle: float, u: float) -> float | None:
+        """The range (m) of a fixed surface (not the target) a sonar at ``mount`` may hear
+        along the ray at ``u`` (-1 .. 1) of its beam's half-angle (rad); None: nothing."""
+        return None
 
     def rest_motion(self) -> Motion:
         """The pose in which boards are calibrated, still: the scenario's "0 deg" pose."""
@@ -193,8 +208,19 @@ class Still(Scenario):
 
 class Train(Scenario):
     """A toy train on a circle (thesis ch. 6.1): theta = phase + omega tau (thesis eq. 6.8),
-    position center + radius (cos theta, sin theta); the board faces the direction of travel
-    (x forward, y towards the centre when omega > 0)."""
+    position center + r(theta) (cos theta, sin theta); the board faces the direction of
+    travel (x forward, y towards the centre when omega > 0).
+
+    Rails that are not a perfect circle: r(theta) = radius + out_of_round
+    cos(2 (theta - round_phase)) (two lobes, m); the polar angle still advances at the
+    constant ``omega`` (what a lap count measures), while the heading, hence the gyroscope,
+    turns a little faster where the track is tighter. ``gauge`` (m): distance between the
+    two rails (thesis ch. 6.5: inner 0.57, outer 0.615 m). ``rest_phase`` (rad): where the
+    train really stands when it is "placed at 0 deg" for the calibrations (a magnetometer
+    calibrated there reads theta - rest_phase). ``tilt`` (rad) about the horizontal axis at
+    ``tilt_axis`` (rad from x): a table that is not level (the board turns with the track's
+    plane; gravity then leaks into the accelerometer's y axis once per lap).
+    """
 
     kind = "train"
     target = Target(radius=0.05, length=0.5)
@@ -210,30 +236,80 @@ class Train(Scenario):
         omega: float = 0.84,
         phase: float = 0.0,
         height: float = 0.0,
+        out_of_round: float = 0.0,
+        round_phase: float = 0.0,
+        rest_phase: float = 0.0,
+        gauge: float = 0.045,
+        tilt: float = 0.0,
+        tilt_axis: float = 0.0,
     ) -> None:
         if radius <= 0:
             raise ValueError(f"train radius must be > 0 m, got {radius!r}")
+        if not 0 <= out_of_round < radius / 4:
+            raise ValueError(f"train out_of_round must be in [0, radius / 4), got {out_of_round!r}")
         self.center, self.radius, self.omega = center, radius, omega
         self.phase, self.height = phase, height
-        self._turn = math.copysign(math.pi / 2.0, omega) if omega else math.pi / 2.0
+        self.out_of_round, self.round_phase = out_of_round, round_phase
+        self.rest_phase, self.gauge = rest_phase, gauge
+        self._dir = -1.0 if omega < 0 else 1.0
+        self._tilt = g.axis_angle((math.cos(tilt_axis), math.sin(tilt_axis), 0.0), tilt)
+
+    def radius_at(self, th: float) -> float:
+        """The radius of the track's centre line at polar angle ``th`` (m)."""
+        return self.radius + self.out_of_round * math.cos(2.0 * (th - self.round_phase))
+
+    def rails(self) -> tuple[float, float]:
+        """The radii of the inner and the outer rail, their extremes over the lap (m)."""
+        half = self.gauge / 2.0
+        return (self.radius - self.out_of_round - half, self.radius + self.out_of_round + half)
+
+    def polar(self, tau: float) -> tuple[float, float, float]:
+        """(theta rad, omega rad/s, radius m) of the train about the centre at ``tau``."""
+        th = self.phase + self.omega * tau
+        return th, self.omega, self.radius_at(th)
 
     def motion(self, tau: float) -> Motion:
         th = self.phase + self.omega * tau
         return self._at(th, self.omega)
 
     def _at(self, th: float, w: float) -> Motion:
-        c, s, r = math.cos(th), math.sin(th), self.radius
+        a, k = self.out_of_round, 2.0 * (th - self.round_phase)
+        r = self.radius + a * math.cos(k)
+        dr, ddr = -2.0 * a * math.sin(k), -4.0 * a * math.cos(k)
+        c, s = math.cos(th), math.sin(th)
+        # p = center + r u, u = (c, s), n = (-s, c): dp/dth = r' u + r n,
+        # d2p/dth2 = (r'' - r) u + 2 r' n; v = w dp/dth, acc = w^2 d2p/dth2 (w constant)
+        d1 = (dr * c - r * s, dr * s + r * c)
+        d2 = ((ddr - r) * c - 2.0 * dr * s, (ddr - r) * s + 2.0 * dr * c)
+        heading = math.atan2(self._dir * d1[1], self._dir * d1[0])
+        turn = w * (d1[0] * d2[1] - d1[1] * d2[0]) / (d1[0] ** 2 + d1[1] ** 2)
         return Motion(
             position=(self.center[0] + r * c, self.center[1] + r * s, self.height),
-            velocity=(-r * w * s, r * w * c, 0.0),
-            acceleration=(-r * w * w * c, -r * w * w * s, 0.0),
-            orientation=g.yaw(th + self._turn),
-            angular_rate=(0.0, 0.0, w),
+            velocity=(w * d1[0], w * d1[1], 0.0),
+            acceleration=(w * w * d2[0], w * w * d2[1], 0.0),
+            orientation=g.quat_mul(self._tilt, g.yaw(heading)),
+            angular_rate=(0.0, 0.0, turn),
         )
 
     def rest_motion(self) -> Motion:
-        m = self._at(0.0, 0.0)  # the train stopped at theta = 0 ("place at 0 deg")
+        m = self._at(self.rest_phase, 0.0)  # the train stopped where it was "placed at 0 deg"
         return Motion(position=m.position, orientation=m.orientation)
+
+    def clutter_range(self, mount: SonarMount, half_angle: float, u: float) -> float | None:
+        """The range of the far side of the track seen by a sonar at ``mount`` along the
+        ray at ``u`` (-1 .. 1) of its beam's half-angle ``half_angle`` (rad) in the plane:
+        where that ray leaves the outer rail's circle, or None if it misses the track."""
+        d = mount.direction
+        a = math.atan2(d[1], d[0]) + u * half_angle
+        ux, uy = math.cos(a), math.sin(a)
+        ox, oy = mount.position[0] - self.center[0], mount.position[1] - self.center[1]
+        big = self.rails()[1]
+        b = ox * ux + oy * uy
+        disc = b * b - (ox * ox + oy * oy - big * big)
+        if disc <= 0:
+            return None
+        far = -b + math.sqrt(disc)
+        return far if far > 0 else None
 
     def default_sonars(self) -> tuple[SonarMount, ...]:
         cx, cy = self.center
@@ -476,6 +552,7 @@ class ScenarioKind:
 
 _REGISTRY: dict[str, ScenarioKind] = {}
 EXTRA_SCENARIOS: tuple[str, ...] = (
+    "hera.nodes.rough",
     "hera.nodes.ir.scenarios",
     "hera.nodes.tof.scenario",
     "hera.nodes.lsm6dsl.scenario",
@@ -520,17 +597,36 @@ register_scenario(
     {"position", "yaw"},
     lambda w: Still(_v(w, "position", ZERO), _f(w, "yaw", 0.0)),  # type: ignore[arg-type]
 )
-register_scenario(
-    "train",
-    {"center", "radius", "omega", "phase", "height"},
-    lambda w: Train(
-        _v(w, "center", (0.0, 0.0)),  # type: ignore[arg-type]
-        _f(w, "radius", 0.6),
-        _f(w, "omega", 0.84),
-        _f(w, "phase", 0.0),
-        _f(w, "height", 0.0),
-    ),
+TRAIN_KEYS = frozenset(
+    {"center", "radius", "omega", "phase", "height", "out_of_round", "round_phase_deg"}
+    | {"rest_phase_deg", "gauge", "tilt_deg", "tilt_axis_deg"}
 )
+"""World keys of the ``train`` scenario (see :class:`Train`; angles in degrees)."""
+
+
+def train_from(w: Mapping[str, Any], **defaults: float) -> Train:
+    """A :class:`Train` from a world table; ``defaults`` replace the built-in defaults of
+    its keys (``round_phase_deg``, ``rest_phase_deg`` in degrees)."""
+    d = {"radius": 0.6, "omega": 0.84, "phase": 0.0, "height": 0.0, "out_of_round": 0.0}
+    d.update({"round_phase_deg": 0.0, "rest_phase_deg": 0.0, "gauge": 0.045})
+    d.update({"tilt_deg": 0.0, "tilt_axis_deg": 0.0})
+    d.update(defaults)
+    return Train(
+        _v(w, "center", (0.0, 0.0)),  # type: ignore[arg-type]
+        _f(w, "radius", d["radius"]),
+        _f(w, "omega", d["omega"]),
+        _f(w, "phase", d["phase"]),
+        _f(w, "height", d["height"]),
+        _f(w, "out_of_round", d["out_of_round"]),
+        math.radians(_f(w, "round_phase_deg", d["round_phase_deg"])),
+        math.radians(_f(w, "rest_phase_deg", d["rest_phase_deg"])),
+        _f(w, "gauge", d["gauge"]),
+        math.radians(_f(w, "tilt_deg", d["tilt_deg"])),
+        math.radians(_f(w, "tilt_axis_deg", d["tilt_axis_deg"])),
+    )
+
+
+register_scenario("train", TRAIN_KEYS, train_from)
 register_scenario(
     "rail",
     {"start", "axis", "length", "period"},

@@ -120,9 +120,13 @@ def latency(period: float, seconds: float, security: str = "auth") -> dict[str, 
 
             make_certs(certs, spec.name, cert_hosts(spec))
         with running(text + SECURITY[security].format(certs=certs)) as c:
+            deadline = time.monotonic() + 30  # the window starts once a's stream reaches b
+            while "a" not in c.query("b", "status")["b"]["transit_ms"]:
+                if time.monotonic() > deadline:
+                    raise RuntimeError("node b received no sample of node a within 30 s")
+                time.sleep(0.1)
             time.sleep(seconds)
-            st = c.query("b", "status")["b"]
-            return st["transit_ms"]["a"]
+            return c.query("b", "status")["b"]["transit_ms"]["a"]
 
 
 def security_cost(seconds: float, rounds: int) -> dict[str, dict[str, float]]:

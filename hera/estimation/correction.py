@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from . import backend as _bk
+from .consider import consider_indices, restore_considered
 from .gating import gate_threshold
 from .numerics import CovarianceError, NonFiniteInputError, finite, numerical_jacobian
 from .observations import Block, Observations, _bad_variance
@@ -568,15 +569,20 @@ class LinearisedFilter(FilterState):
         *,
         method: str = "auto",
         details: bool = False,
+        consider: Sequence[int] | np.ndarray | None = None,
     ) -> UpdateResult:
         """Fuse the present observation blocks (thesis listing 4.1). No blocks: no-op.
 
         ``gate``: chi-square probability per block (e.g. 0.999) or None; defaults to the
         filter's ``gate``. Returns which blocks were accepted/rejected with their NIS;
         ``details=True`` adds y, S, K, H and the log-likelihood of the fused rows
-        (``result.details``; computed on the numpy path). On any exception the state is
-        unchanged.
+        (``result.details``; computed on the numpy path). ``consider``: states (indices or
+        a boolean mask) this update must not change, Schmidt "consider" states
+        (:mod:`.consider`): their gain rows are zero, the covariance stays consistent
+        (Joseph form). On any exception the state is unchanged.
         """
+        if consider is not None:
+            return self._update_considering(obs, gate, method, details, consider)
         blocks = obs.blocks if type(obs) is Observations else as_blocks(obs)
         if gate is ...:
             gate = self.gate
@@ -650,3 +656,25 @@ class LinearisedFilter(FilterState):
         if x_new is not self._x:
             self._commit_update(x_new, P_new, res)
         return res
+
+    def _update_considering(
+        self,
+        obs: Observations | Sequence[Block] | Block | None,
+        gate: float | None,
+        method: str,
+        details: bool,
+        consider: Sequence[int] | np.ndarray,
+    ) -> UpdateResult:
+        """The Schmidt update: the joint update, then the considered states' x and P block
+        restored (equal to zeroing their gain rows, see :mod:`.consider`); the restored
+        state is the step's posterior (``x_post``, the history)."""
+        if method == "sequential":
+            raise ValueError("consider states need the joint update, not method='sequential'")
+        idx = consider_indices(consider, self.n)
+        x0, P0 = self._x, self._P
+        joint = "joint" if method == "auto" else method
+        result = self.update(obs, gate, method=joint, details=details)
+        if len(idx) and self._x is not x0:
+            x, P = restore_considered(x0, P0, self._x, self._P, idx)
+            self._commit_update(x, P, None)  # None: the log-likelihood is counted once
+        return result

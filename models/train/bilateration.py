@@ -37,10 +37,12 @@ def intersect(
 
 
 class Bilateration:
-    """Fusion model ``bilateration``: output ``[x m, y m]``."""
+    """Fusion model ``bilateration``: output ``[x m, y m, span s]``, span: how long before the
+    fix's time the older of its two readings was taken (a moving target was seen at two
+    places: the fix describes it about span / 2 earlier)."""
 
     inputs = ("sonar",)
-    columns = ("x [m]", "y [m]")
+    columns = ("x [m]", "y [m]", "span [s]")
 
     def __init__(
         self,
@@ -97,7 +99,7 @@ class Bilateration:
         if not (self.in_beam(sample, x, y) and self.in_beam(other, x, y)):
             self.outside += 1
             return False
-        self._estimate = (sample.t, [x, y])
+        self._estimate = (sample.t, [x, y, sample.t - other.t])
         return True
 
     def counters(self) -> dict[str, int]:

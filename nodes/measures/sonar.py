@@ -39,7 +39,12 @@ SONAR_ARGS = Table(
         Setting("index", number(0, integer=True), 0, "the scenario's default placement number"),
         Setting("ping_ms", number(above=0), None, "ms per reading (simulator: 49)"),
         Setting("half_angle_deg", number(above=0, maximum=89), None, "beam half-angle (20)"),
-        Setting("fire_log", STR, None, "append `start end node` per ping (monotonic s)"),
+        Setting(
+            "fire_log",
+            STR,
+            None,
+            "audit: append `start end node epoch token deadline` per ping (sync clock s)",
+        ),
         Setting("air_group", STR, None, "simulated air shared with (default: the sync group)"),
         Setting("crosstalk", BOOL, True, "simulate cross-talk with the group's other sonars"),
     ],

@@ -1,11 +1,21 @@
 """Train tracking end to end (thesis ch. 6) on a real 4-node cluster, its replay and scoring.
 
 One 30 s run of deploy/train.toml is shared by the tests of this module. Asserted: every e7
-angular-speed estimate within 1 % of the truth after 3 s; e8 radius within 1.5 cm
-after 10 s (RMS); e9 position RMSE at most 5 cm once converged (after 10 s); every rung of
-the ladder of thesis fig. 6.5 (e4, e6 .. e9) no worse than the one before on angular speed
-once converged, and e6 no worse than e5 (bilateration) on position; a replay
-of the run's recordings scoring within 10 % of the live run.
+angular-speed estimate within 1 % of the truth once settled (after 10 s); e8 radius within
+1.5 cm after 10 s (RMS); e9 position RMSE at most 5 cm once converged (after 10 s); every
+rung of the ladder of thesis fig. 6.5 (e4, e6 .. e9) no worse than the one before on
+angular speed once converged, and e6 no worse than e5 (bilateration) on position; a
+replay of the run's recordings scoring within 10 % of the live run.
+
+Why e7's 1 % counts from 10 s (issue 20): before e7 has locked and learnt the gyroscope's
+scale (half a lap of lock), its w is the gyroscope's running mean: from vibration alone
+(sigma_g^2 = 0.005 at 100 Hz, thesis eq. 6.4) that mean is 0.5 % off (1 sigma) at 3 s, and
+the scale error (0.3 %) adds to it; over 60 offline runs 1 in 6 strays past 1 % between 3
+and 10 s, with the old model and with this one. What failed CI was e7 leaving 1 % *after*
+it had settled (a settled RMS of 0.40 %): the scale state was learnt from the first
+readings after the lock and kicked by the range model's short-baseline errors. It is now
+a consider state until half a lap of lock (tests/models/test_train_offline.py holds the
+1 % from 10 s over 16 runs; -m slow: 60).
 """
 
 from __future__ import annotations
@@ -19,6 +29,7 @@ from pathlib import Path
 import pytest
 from harness import cluster_env
 
+from hera.application import EvalOptions
 from hera.evaluate import by_model, evaluate
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -68,11 +79,13 @@ LADDER = ("omega_acc", "track_bilat", "track_sonar", "track_gyro", "track_radius
 
 def test_live_run_meets_the_thresholds_on_both_model_nodes(train_run):
     res = by_model(evaluate(train_run))
+    settled = by_model(evaluate(train_run, EvalOptions(after=10.0)))
     for node in NODES:
         for m in LADDER:
             assert res[(m, node)]["estimates"] > 300, (m, node)  # ~20 Hz for 30 s
         e7, e8, e9 = (res[(m, node)] for m in ("track_gyro", "track_radius", "track_mag"))
-        assert e7["omega_max_pct"] <= 1.0, (node, e7)  # every estimate after 3 s
+        e7_settled = settled[("track_gyro", node)]
+        assert e7_settled["omega_max_pct"] <= 1.0, (node, e7_settled)  # every one from 10 s
         assert e8["radius_rms_cm"] <= 1.5, (node, e8)
         assert e9["pos_rmse_cm"] <= 5.0, (node, e9)
 

@@ -77,7 +77,7 @@ def _wait_connected(sonars: list[Sonar], deadline_s: float = 10.0) -> None:
 def _intervals(path: Path) -> dict[str, list[tuple[float, float]]]:
     out: dict[str, list[tuple[float, float]]] = {}
     for line in path.read_text().splitlines():
-        start, end, node = line.split()
+        start, end, node = line.split()[:3]
         out.setdefault(node, []).append((float(start), float(end)))
     return out
 
@@ -125,7 +125,8 @@ def test_sonars_taking_turns_never_corrupt(two_sessions, tmp_path) -> None:
         assert ctx.counters.get("crosstalk", 0) == 0
     log = _intervals(tmp_path / "fire.log")
     assert sorted(log) == ["s1", "s2"] and _overlaps(log) == 0
-    assert all(e - s >= 0.03 for pings in log.values() for s, e in pings)
+    # each line spans its 30 ms ping (end = start + ping, both written to the microsecond)
+    assert all(e - s == pytest.approx(0.03, abs=2e-6) for pings in log.values() for s, e in pings)
 
 
 def test_sonars_of_one_node_share_the_air(tmp_path) -> None:

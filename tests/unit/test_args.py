@@ -65,3 +65,32 @@ def test_replicates_between_sessions_and_recovers_on_start():
         a2.close()
         s1.close()
         s2.close()
+
+
+def test_two_threads_saving_at_once_keep_both_keys_on_disk(tmp_path, monkeypatch):
+    """A fault campaign found a calibration missing from a node's state file: two measures
+    stored theirs at once, and the save holding the older snapshot replaced the newer file.
+    The older snapshot is made slow here; both keys must be on disk all the same."""
+    import threading
+    import time
+
+    import msgpack
+
+    from hera import args as args_module
+
+    real = msgpack.packb
+
+    def slow_when_small(data, **kw):
+        if len(data) == 1:
+            time.sleep(0.2)  # the first snapshot is written last, in the old code
+        return real(data, **kw)
+
+    monkeypatch.setattr(args_module.msgpack, "packb", slow_when_small)
+    store = ArgsStore("n1", state_dir=tmp_path)
+    first = threading.Thread(target=store.put, args=("calib/n1/nav", 1))
+    first.start()
+    time.sleep(0.05)
+    store.put("calib/n1/mag", 2)
+    first.join()
+    monkeypatch.setattr(args_module.msgpack, "packb", real)
+    assert ArgsStore("n1", state_dir=tmp_path).items() == {"calib/n1/nav": 1, "calib/n1/mag": 2}

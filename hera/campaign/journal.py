@@ -1,0 +1,57 @@
+"""The fault journal: what was done to the cluster, when, one JSON line per event.
+
+``<campaign dir>/faults.jsonl``; every line ``{"event", "index", "name", "kind", "nodes",
+"t", "clock", ...}`` with ``event`` one of ``start`` (the fault struck), ``end`` (it was
+undone), ``error`` (it could not be done: ``error`` says why), ``note`` (``extra``: what
+else is worth knowing, e.g. who held the slot when the leader was killed). ``t`` is the wall
+clock (epoch s) and ``clock`` the sync clock (:mod:`hera.sync.clock`, the fire logs' clock)
+read at the same moment. Faults injected by hand (``hera inject`` on a campaign's cluster)
+are journaled too, with ``index`` -1.
+
+Each line is appended with one ``write`` on an ``O_APPEND`` file, so two writers (the
+campaign and a person's ``hera inject``) never interleave within a line.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+from hera.sync import clock as sync_clock
+
+FILE = "faults.jsonl"
+
+
+def now() -> tuple[float, float]:
+    """(wall clock, sync clock) read together."""
+    return time.time(), sync_clock.now()
+
+
+def append(folder: Path, event: str, **fields: Any) -> dict[str, Any]:
+    """Append one event to ``folder/faults.jsonl``; return it."""
+    t, clock = now()
+    entry = {"event": event, "t": t, "clock": clock, **fields}
+    line = (json.dumps(entry, default=str) + "\n").encode()
+    fd = os.open(Path(folder) / FILE, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        os.write(fd, line)
+    finally:
+        os.close(fd)
+    return entry
+
+
+def read(folder: Path) -> list[dict[str, Any]]:
+    """Every event of the journal in order (a torn last line is skipped)."""
+    path = Path(folder) / FILE
+    if not path.exists():
+        return []
+    out = []
+    for line in path.read_text().splitlines():
+        try:
+            out.append(json.loads(line))
+        except ValueError:
+            continue
+    return out

@@ -1,0 +1,358 @@
+"""Each checker passes on a clean recorded history and fails on a planted fault.
+
+The histories are campaign directories written by hand (``campaign_synth``) and read back
+by the campaign's own readers; a checker that cannot fail is no checker, so every one of
+them is shown failing here on the kind of history it exists to catch.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+import time
+
+import pytest
+from campaign_synth import T0, Synth, steady
+
+from hera.campaign import checkers
+from hera.models.train.app import train_truth
+
+CAMPAIGN = {
+    "campaign": {"name": "synth"},
+    "faults": [{"kind": "kill", "target": "a", "name": "kill a"}],
+    "checks": {
+        "estimates": {"models": ["track_gyro"], "metric": "omega_rms_pct", "floor": 0.5},
+        "agreement": {"models": ["track_gyro"], "columns": {"omega [rad/s]": 0.02}},
+    },
+    "figures": [
+        {"label": "killed node noticed", "faults": ["kill"], "figure": "detect", "target_s": 0.5},
+    ],
+}
+KILL_AT = 40.0
+BACK_AT = 41.0
+
+
+def truthful(world, bias: float = 0.0, after: float = math.inf):
+    """Estimates equal to the truth (a fixed small wobble), omega off by ``bias`` (relative)
+    from ``after`` (s from T0) on."""
+    truth = train_truth(world)
+
+    def values(t: float) -> list[float]:
+        r = truth.at(t)
+        wobble = 0.001 * math.sin(7 * t)
+        w = r["omega [rad/s]"] * (1 + wobble + (bias if t - T0 >= after else 0.0))
+        return [r["x [m]"], r["y [m]"], r["theta [rad]"], w]
+
+    return values
+
+
+def clean(tmp_path, campaign=None, faults: bool = True, **edits) -> Synth:
+    """A run with one fault (node a killed at 40 s, back at 41 s; not journaled without
+    ``faults``) that every checker accepts; ``edits`` plant a fault (see the tests)."""
+    s = Synth(tmp_path, campaign or CAMPAIGN)
+    world = s.spec.world
+    # sonars on a and b take turns: 49 ms pings, one slot each per 130 ms round
+    spans = {"a": [], "b": []}
+    grants = {"a": [], "b": []}
+    token = 0
+    for t in steady(5.0, 118.0, 0.13):
+        for node, off in (("a", 0.0), ("b", 0.065)):
+            start = t + off
+            if node == "a" and KILL_AT <= start < BACK_AT:
+                continue
+            token += 1
+            spans[node].append((start, start + 0.049))
+            grants[node].append((1, (1 << 32) | token, start + 0.06))
+    for node in ("a", "b"):
+        sp, gr = spans[node], grants[node]
+        if "firings" in edits:
+            sp, gr = edits["firings"](node, sp, gr)
+        s.firings(node, sp, gr)
+        times = [a for a, _ in sp]
+        s.stream("sonar", node, times, [[1.0, 0.0, -1.5]] * len(times))
+    for node in ("b", "c"):
+        times = steady(5.0, 119.0, 0.05)
+        if "model_times" in edits:
+            times = edits["model_times"](node, times)
+        s.stream("track_gyro", node, times, edits.get("values", {}).get(node, truthful(world)))
+    for node in ("a", "b", "c"):
+        s.log(node, 0.0, "hera.node", f"node {node} up on tcp/127.0.0.1:7001 with 1 measures")
+    s.log("a", BACK_AT - 0.2, "hera.node", "node a up on tcp/127.0.0.1:7001 with 1 measures")
+    for obs in ("b", "c"):
+        s.log(obs, KILL_AT + 0.006, "hera.peers", "peer a down")
+        s.log(obs, BACK_AT - 0.2, "hera.peers", "peer a up")
+    if faults:
+        s.fault("kill", KILL_AT, nodes=["a"], target="a", name="kill a")
+    entry = (1_000, "a", [0.1, 0.2])
+    s.args_write(2.0, "calib/a/nav", entry[0], entry[1], entry[2])
+    for node in ("a", "b", "c"):
+        s.persist(node, {"calib/a/nav": entry})
+    s.final["args"] = {n: {"calib/a/nav": entry[2]} for n in ("a", "b", "c")}
+    for fn in edits.get("then", ()):
+        fn(s)
+    return s
+
+
+def verdicts(s: Synth) -> dict[str, checkers.Verdict]:
+    return {v.name: v for v in checkers.run_all(s.load())}
+
+
+def test_a_clean_history_passes_every_checker(tmp_path):
+    v = verdicts(clean(tmp_path))
+    failed = {k: x.summary for k, x in v.items() if not x.passed}
+    assert not failed
+    assert not any(x.skipped for x in v.values())
+    assert "0 overlapping firings" in v["overlaps"].summary
+    assert "0 of 1 args lost" in v["args"].summary
+
+
+def _overlap(node, spans, grants):
+    if node == "b":  # b fires once 10 ms into a's ping
+        a_start = 20.0 + 0.0
+        spans = [*spans, (a_start + 0.01, a_start + 0.059)]
+        grants = [*grants, (1, (1 << 32) | 10**6, a_start + 0.07)]
+        order = sorted(range(len(spans)), key=lambda i: spans[i][0])
+        spans, grants = [spans[i] for i in order], [grants[i] for i in order]
+    return spans, grants
+
+
+def _late(node, spans, grants):
+    if node == "a":
+        grants = [(e, t, d - 0.03) if i == 50 else (e, t, d) for i, (e, t, d) in enumerate(grants)]
+    return spans, grants
+
+
+def _stale(node, spans, grants):
+    if node == "b":  # a firing under a token older than the one before it
+        grants = [(e, t - 10 if i == 60 else t, d) for i, (e, t, d) in enumerate(grants)]
+    return spans, grants
+
+
+def _gap(node, times):
+    return [t for t in times if not (node == "c" and 80.0 <= t < 84.0)]
+
+
+def _silent(node, times):
+    return [t for t in times if not (node == "c" and 60.0 <= t < 70.0)]
+
+
+def _seq_back(s):
+    s.stream("sonar", "b", [119.0, 119.1], [[1.0, 0.0, -1.5]] * 2, seqs=[5, 6])
+
+
+def _dup(s):
+    s.stream("sonar", "b", [119.0], [[1.0, 0.0, -1.5]], seqs=[1])
+
+
+def _old_incarnation(s):
+    # a sample of b's first incarnation after its second one published (seqs of its own)
+    s.stream("sonar", "b", [119.0, 119.1, 119.2], [[1.0, 0.0, -1.5]] * 3, [1, 2, 900], [1, 1, 0])
+
+
+def _args_missing(s):
+    del s.final["args"]["c"]["calib/a/nav"]
+
+
+def _args_old(s):
+    s.args_write(50.0, "calib/a/nav", 2_000, "b", [0.3, 0.4])  # newer write, not everywhere
+    s.final["args"]["a"]["calib/a/nav"] = [0.3, 0.4]
+    s.final["args"]["b"]["calib/a/nav"] = [0.3, 0.4]
+    for node in ("a", "b", "c"):
+        s.persist(node, {"calib/a/nav": (2_000, "b", [0.3, 0.4])})
+
+
+def _args_redone(s):
+    s.args_write(BACK_AT, "calib/a/nav", 3_000, "a", [0.5, 0.5])  # recalibrated on restart
+    for node in ("a", "b", "c"):
+        s.final["args"][node]["calib/a/nav"] = [0.5, 0.5]
+        s.persist(node, {"calib/a/nav": (3_000, "a", [0.5, 0.5])})
+
+
+def _not_on_disk(s):
+    s.persist("c", {})
+
+
+def _not_noticed(s):
+    for obs in ("b", "c"):
+        (s.dir / "run" / "logs" / f"{obs}.log").write_text("")
+        s.log(obs, 0.0, "hera.node", f"node {obs} up on tcp/127.0.0.1:7001 with 1 measures")
+
+
+def _crash(s, node: str, t: float) -> None:
+    s.log(node, t, "hera.worker", "measure sonar crashed: RuntimeError: boom", "WARNING")
+    s.log(node, t + 0.001, "hera.supervisor", "restarted sonar (crashed: RuntimeError: boom)")
+
+
+def _restart_storm(s):
+    for k in range(12):  # 12 exits in 12 s with intensity 10 / 60 s, and no escalation
+        _crash(s, "b", 50.0 + k)
+
+
+def _escalated_early(s):
+    _crash(s, "b", 50.0)
+    s.log("b", 50.5, "hera.node", "node b escalates: restart intensity exceeded", "ERROR")
+
+
+def _escalated_right(s):
+    for k in range(11):  # the 11th exit within 60 s escalates: as it should
+        _crash(s, "b", 50.0 + k)
+    s.log("b", 60.0, "hera.node", "node b escalates: restart intensity exceeded", "ERROR")
+    s.log("b", 60.5, "hera.node", "node b up on tcp/127.0.0.1:7002 with 1 measures")
+
+
+def _leftover(s):
+    s.leftovers = [{"pid": 4242, "cmdline": "python -c from hera.cli ... node"}]
+
+
+def _fault_failed(s):
+    s.fault("pause", 60.0, 2.0, error="node b did not answer", target="b", name="pause b")
+
+
+def _never_undone(s):
+    s.fault("pause", 60.0, 2.0, nodes=["b"], undone=False, target="b", name="pause b")
+
+
+def _slow_detect(s):
+    for obs in ("b", "c"):
+        (s.dir / "run" / "logs" / f"{obs}.log").write_text("")
+        s.log(obs, 0.0, "hera.node", f"node {obs} up on tcp/127.0.0.1:7001 with 1 measures")
+        s.log(obs, KILL_AT + 0.9, "hera.peers", "peer a down")
+
+
+PLANTED = [
+    ("overlaps", {"firings": _overlap}),
+    ("stale_firings", {"firings": _late}),
+    ("stale_firings", {"firings": _stale}),
+    ("gaps", {"model_times": _gap}),
+    ("sequences", {"then": [_seq_back]}),
+    ("sequences", {"then": [_dup]}),
+    ("sequences", {"then": [_old_incarnation]}),
+    ("args", {"then": [_args_missing]}),
+    ("args", {"then": [_args_old]}),
+    ("args", {"then": [_args_redone]}),
+    ("args", {"then": [_not_on_disk]}),
+    ("recovery", {"then": [_not_noticed]}),
+    ("agreement", {"model_times": _silent}),
+    ("restarts", {"then": [_restart_storm]}),
+    ("restarts", {"then": [_escalated_early]}),
+    ("leftovers", {"then": [_leftover]}),
+    ("schedule", {"then": [_fault_failed]}),
+    ("schedule", {"then": [_never_undone]}),
+    ("figures", {"then": [_slow_detect]}),
+]
+
+
+@pytest.mark.parametrize(
+    ("checker", "edits"), PLANTED, ids=[f"{c}-{i}" for i, (c, _) in enumerate(PLANTED)]
+)
+def test_each_checker_fails_on_its_planted_fault(tmp_path, checker, edits):
+    v = verdicts(clean(tmp_path, **edits))
+    assert not v[checker].passed, v[checker].summary
+
+
+def test_a_new_incarnation_may_start_its_seqs_again(tmp_path):
+    """A restarted process takes a new incarnation and may number from 1 again (hera.wire);
+    within it the seqs must still rise."""
+
+    def restarted(s):
+        s.stream("sonar", "b", [119.0, 119.1], [[1.0, 0.0, -1.5]] * 2, [1, 2], [1, 1])
+
+    v = verdicts(clean(tmp_path, then=[restarted]))["sequences"]
+    assert v.passed, v.summary
+    assert "1 of them from more than one incarnation" in v.summary
+
+
+def test_an_escalation_after_too_many_exits_is_what_a_supervisor_must_do(tmp_path):
+    v = verdicts(clean(tmp_path, then=[_escalated_right]))
+    assert v["restarts"].passed, v["restarts"].summary
+    assert "1 escalations" in v["restarts"].summary
+
+
+def test_estimates_fail_when_a_model_stays_off_after_a_fault(tmp_path):
+    s0 = Synth(tmp_path / "x")
+    world = s0.spec.world
+    bias = {"b": truthful(world, bias=0.03, after=KILL_AT + 1)}  # 3 % off for good
+    v = verdicts(clean(tmp_path, values=bias))
+    assert not v["estimates"].passed and "track_gyro@b" in v["estimates"].summary
+    assert not v["agreement"].passed  # and the two nodes no longer agree
+    ok = verdicts(clean(tmp_path / "ok"))
+    assert ok["estimates"].passed and ok["agreement"].passed
+
+
+def test_a_partition_minority_that_fires_or_never_comes_back_fails(tmp_path):
+    """Node a (a sync host of three) is cut off for 4 s: it must stop firing within one
+    sync lease (0.3 s) and fire again within 2 s of the healing."""
+    camp = {
+        **CAMPAIGN,
+        "faults": [
+            {"kind": "partition", "groups": [["a"], ["others"]], "duration_s": 4, "name": "cut a"}
+        ],
+    }
+
+    def minority(fires_late: bool, resumes: bool):
+        def edit(node, spans, grants):
+            keep = []
+            for span, g in zip(spans, grants, strict=True):
+                start = span[0]
+                if node == "a" and 60.3 < start < 64.0 and not fires_late:
+                    continue
+                if node == "a" and start >= 64.0 and not resumes:
+                    continue
+                keep.append((span, g))
+            return [k[0] for k in keep], [k[1] for k in keep]
+
+        return edit
+
+    def run(folder, **kw):
+        s = clean(folder, camp, firings=minority(**kw), faults=False)
+        s.fault(
+            "partition",
+            60.0,
+            4.0,
+            nodes=["a", "b", "c"],
+            pairs=[["a", "b"], ["a", "c"]],
+            groups=[["a"], ["b", "c"]],
+            name="cut a",
+        )
+        return verdicts(s)["sync_partitions"]
+
+    good = run(tmp_path / "good", fires_late=False, resumes=True)
+    assert good.passed, good.summary
+    assert not run(tmp_path / "fires", fires_late=True, resumes=True).passed
+    assert not run(tmp_path / "gone", fires_late=False, resumes=False).passed
+
+
+def test_leftovers_sees_a_live_process_of_the_run(tmp_path):
+    s = clean(tmp_path)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import time; from hera.wallclock import now; time.sleep(30)",
+            str(tmp_path),
+        ]
+    )
+    try:
+        time.sleep(0.2)
+        v = checkers.check_leftovers(s.load())
+        assert not v.passed and "1 still alive" in v.summary
+    finally:
+        proc.kill()
+        proc.wait()
+    assert checkers.check_leftovers(s.load()).passed
+
+
+def test_a_checker_that_breaks_is_reported_failed_not_passed(tmp_path, monkeypatch):
+    def broken(h):
+        raise KeyError("boom")
+
+    monkeypatch.setitem(checkers.CHECKS, "gaps", broken)
+    v = verdicts(clean(tmp_path))
+    assert not v["gaps"].passed and "KeyError" in v["gaps"].summary
+
+
+def test_skipped_checkers_are_never_counted_as_passed(tmp_path):
+    camp = {**CAMPAIGN, "checks": {**CAMPAIGN["checks"], "skip": ["gaps"]}}
+    v = verdicts(clean(tmp_path, camp))
+    assert v["gaps"].skipped and v["gaps"].status == "skipped"

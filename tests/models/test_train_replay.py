@@ -1,0 +1,168 @@
+"""`hera replay` and `hera eval` on train runs (issue 20): chained models in one call,
+overrides of model settings and of the world checked against what is declared, and runs
+scored against a reference series when their world has no truth."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from harness import cluster_env
+
+from hera.evaluate import by_model, evaluate
+from hera.nodes.offline import simulate
+from hera.recordings import CsvWriter
+from hera.replay import dependency_order
+from hera.spec import load_spec
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory) -> Path:
+    """30 s of the boards of deploy/train.toml: no model output, no bilateration."""
+    tmp = tmp_path_factory.mktemp("sim")
+    return simulate(load_spec(ROOT / "deploy" / "train.toml"), tmp / "sim", 30.0, seed=3)
+
+
+def hera(*args: str, tmp: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "hera", *args],
+        env=cluster_env(tmp),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def test_a_model_fed_by_another_runs_after_it_in_the_same_replay(sim, tmp_path):
+    out = tmp_path / "out"
+    proc = hera("replay", str(sim), "--out", str(out), "--models", "e5", tmp=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "bilateration" in proc.stdout  # replayed because e5 takes its output
+    res = by_model(evaluate(out))
+    assert res[("bilateration", "replay")]["estimates"] > 20
+    # e5 localised the train from the replayed fixes (without them: ~80 cm off)
+    assert res[("track_bilat", "replay")]["pos_rmse_cm"] < 20
+    assert json.loads((out / "replay.json").read_text())["recordings"] == str(sim.resolve())
+    # the models' diagnostic counters beside their estimates: e5 seeded theta from a fix
+    counters = json.loads((out / "measures" / "track_bilat_replay.counters.json").read_text())
+    assert counters["seeds"] >= 1 and counters["late"] == 0, counters
+    assert {"rejected", "unlocks", "off_track", "direction_fixes"} <= set(counters)
+
+
+def test_spec_given_by_name_or_with_aliases_replays_the_chain(sim, tmp_path):
+    """``--spec`` takes an example's name, and a spec whose measures use the thesis aliases
+    (``use = "e5"``): the models keep the spec's names, bilateration still feeds e5."""
+    text = (ROOT / "deploy" / "train.toml").read_text()
+    assert 'use = "track_bilat"' in text and 'use = "track_radius"' in text
+    aliased = tmp_path / "aliased.toml"
+    aliased.write_text(
+        text.replace('use = "track_bilat"', 'use = "e5"').replace(
+            'use = "track_radius"', 'use = "e8"'
+        )
+    )
+    out = tmp_path / "aliased"
+    proc = hera(
+        "replay", str(sim), "--out", str(out), "--spec", str(aliased), "--models", "e5,e8",
+        tmp=tmp_path,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    res = by_model(evaluate(out))
+    assert set(res) == {("e5", "replay"), ("e8", "replay"), ("bilateration", "replay")}
+    assert res[("e5", "replay")]["pos_rmse_cm"] < 20  # fed by the replayed fixes
+    named = tmp_path / "named"
+    proc = hera(
+        "replay", str(sim), "--out", str(named), "--spec", "train_rough", "--models", "e9",
+        tmp=tmp_path,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert (named / "measures" / "track_mag_replay.csv").exists()
+
+
+def test_models_feeding_each_other_in_a_cycle_are_refused():
+    class M:
+        def __init__(self, *inputs):
+            self.inputs = inputs
+
+    assert dependency_order({"b": M("a"), "a": M("nav"), "c": M("b", "a")}) == ["a", "b", "c"]
+    with pytest.raises(ValueError, match="cycle: x, y"):
+        dependency_order({"x": M("y"), "y": M("x"), "z": M("nav")})
+
+
+def test_set_overrides_a_model_setting_and_the_world(sim, tmp_path):
+    base, moved = tmp_path / "base", tmp_path / "moved"
+    args = ("replay", str(sim), "--models", "e8")
+    assert hera(*args, "--out", str(base), tmp=tmp_path).returncode == 0
+    proc = hera(
+        *args,
+        "--out",
+        str(moved),
+        "--set",
+        "track_radius.radius=0.75",
+        "--set",
+        "track_radius.radius_var0=1e-8",
+        "--set",
+        "track_radius.q_radius=0",
+        "--set",
+        "world.radius=0.75",
+        tmp=tmp_path,
+    )
+    assert proc.returncode == 0, proc.stderr
+    last = (moved / "measures" / "track_radius_replay.csv").read_text().splitlines()[-1]
+    assert float(last.split(",")[-1]) == pytest.approx(0.75, abs=0.001)  # held there
+    base_last = (base / "measures" / "track_radius_replay.csv").read_text().splitlines()[-1]
+    assert float(base_last.split(",")[-1]) == pytest.approx(0.6, abs=0.02)
+    world = json.loads((moved / "cluster.json").read_text())["resolved_spec"]["world"]
+    assert world["radius"] == 0.75
+
+
+@pytest.mark.parametrize(
+    ("override", "says"),
+    [
+        ("track_radius.radiuss=0.57", "has no setting 'radiuss' (did you mean 'radius'?)"),
+        ("track_radius.radius=abc", "could not convert string to float"),
+        ("track_mag.radius=0.57", "no model 'track_mag' among the replayed ones"),
+        ("world.radiuss=0.6", "unknown world keys for scenario 'train': ['radiuss']"),
+        ("radius=0.57", "expected MODEL.SETTING=VALUE or world.KEY=VALUE"),
+    ],
+)
+def test_a_bad_override_is_one_clear_sentence_and_exit_2(sim, tmp_path, override, says):
+    out = tmp_path / "out"
+    proc = hera(
+        "replay", str(sim), "--out", str(out), "--models", "e8", "--set", override, tmp=tmp_path
+    )
+    assert proc.returncode == 2, proc.stdout
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and says in lines[0] and override in lines[0], proc.stderr
+    assert not (out / "measures").exists()  # nothing written
+
+
+def test_eval_without_truth_scores_against_a_reference_series_and_says_so(sim, tmp_path):
+    out = tmp_path / "out"
+    assert (
+        hera("replay", str(sim), "--out", str(out), "--models", "e7", tmp=tmp_path).returncode == 0
+    )
+    spec = json.loads((out / "cluster.json").read_text())
+    spec["resolved_spec"]["world"] = {}  # as a real rig's run: no simulated world
+    (out / "cluster.json").write_text(json.dumps(spec))
+    ref = CsvWriter(tmp_path / "ref", "laps", "stopwatch", ["omega [rad/s]"])
+    epoch = float(load_spec(sim / "cluster.json").world["epoch"])
+    for i in range(31):
+        ref.write(epoch + i, [0.84 * 1.01])  # a stopwatch 1 % fast
+    ref.close()
+    reference = tmp_path / "ref" / "measures" / "laps_stopwatch.csv"
+    proc = hera("eval", str(out), "--no-plots", "--reference", str(reference), tmp=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert f"train: scored against reference series {reference}" in proc.stdout
+    res = by_model(evaluate(out, reference=reference))
+    assert res[("track_gyro", "replay")]["omega_settled_rms_pct"] == pytest.approx(1.0, abs=0.3)
+    # without it, the train's own reference: lap timing over the replay's source recordings
+    (out / "replay.json").write_text(json.dumps({"recordings": str(sim)}))
+    rows = evaluate(out)
+    assert rows[0].source.startswith("self-consistency") and "lap timing" in rows[0].source
+    bad = hera("eval", str(out), "--reference", str(tmp_path / "nope.csv"), tmp=tmp_path)
+    assert bad.returncode == 2 and "nope.csv" in bad.stderr
