@@ -55,7 +55,9 @@ class FusionModel(Protocol):
     and, for ``hera replay --smooth`` (``hera.smoothing``), ``filter``: the
     ``KalmanFilter`` or ``ExtendedKalmanFilter`` the model steps (one, for the whole run),
     with ``estimate_of(x) -> list[float]``: the output columns of a state x of that filter
-    (what ``estimate`` gives for its current state)."""
+    (what ``estimate`` gives for its current state). A model class may also have a
+    classmethod ``check(settings)``: a cheap check of the settings' values, run by the spec
+    checks before anything starts (:meth:`FusionMeasure.check_args`)."""
 
     inputs: tuple[str, ...]
     columns: tuple[str, ...]
