@@ -12,7 +12,7 @@ import time
 from hera import tools
 from hera.client import ClusterClient, find_run_dir, pid_alive
 
-BENCHES = ("bus", "kalman", "sync", "scale", "console", "tilt")
+BENCHES = ("bus", "kalman", "sync", "scale", "console", "tilt", "ahrs")
 
 
 HELP_EXAMPLES = {

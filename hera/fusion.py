@@ -55,7 +55,9 @@ class FusionModel(Protocol):
     and, for ``hera replay --smooth`` (``hera.smoothing``), ``filter``: the
     ``KalmanFilter`` or ``ExtendedKalmanFilter`` the model steps (one, for the whole run),
     with ``estimate_of(x) -> list[float]``: the output columns of a state x of that filter
-    (what ``estimate`` gives for its current state)."""
+    (what ``estimate`` gives for its current state). A model class may also have a
+    classmethod ``check(settings)``: a cheap check of the settings' values, run by the spec
+    checks before anything starts (:meth:`FusionMeasure.check_args`)."""
 
     inputs: tuple[str, ...]
     columns: tuple[str, ...]
@@ -187,6 +189,9 @@ class FusionMeasure(Measure):
 
     @classmethod
     def check_args(cls, args: Mapping[str, Any], where: str) -> list[str]:
+        """The measure's own problems, unknown model settings, and, when the model class
+        has ``check(settings)`` (a cheap check of the values, raising ValueError or
+        TypeError with one sentence), the settings' values, before anything starts."""
         problems = super().check_args(args, where)
         model = args.get("model", {})
         known = cls.settings()
@@ -197,6 +202,12 @@ class FusionMeasure(Measure):
                         f"{where}: model: unknown setting {key!r}{did_you_mean(str(key), known)}"
                         f"; known settings: {', '.join(known)}"
                     )
+        check = getattr(cls.model_class, "check", None)
+        if not problems and isinstance(model, Mapping) and callable(check):
+            try:
+                check({**dict(model), **cls.model_fixed})
+            except (TypeError, ValueError) as e:
+                problems.append(f"{where}: model: {e}")
         return problems
 
     @classmethod

@@ -7,7 +7,13 @@ Kinds and parameters (all optional unless said):
 - ``spikes``: with probability ``prob`` (0.1) one axis gets +/- ``magnitude`` (driver units;
   default per sensor: acc 2 g, gyro 200 deg/s, mag 1 gauss, baro 50 hPa, range 100 in);
 - ``bias``: ``value`` (required; a number or one per axis) is added to the readings;
-- ``disconnect``: every read raises :class:`BoardDisconnected`.
+- ``disconnect``: every read raises :class:`BoardDisconnected`;
+- ``field``: an external field fixed in the **world** frame, ``value`` (required: one number
+  per axis, in the sensor's units, e.g. gauss) added to what a field sensor senses *before*
+  the board's own error model: the board turns in it, so what it adds to the readings
+  changes with the board's orientation (steel or a magnet near a magnetometer). Only for
+  the sensors a board lists as sensing an ambient field (a Pmod NAV: ``mag``); ``sensor``
+  is required.
 
 Every kind takes ``sensor`` (one of the board's sensors; default: all of them) and
 ``duration`` (seconds; default: until cleared).
@@ -24,7 +30,7 @@ from typing import Any
 
 from hera.nodes.driver import BoardDisconnected, NoReading
 
-KINDS = ("stuck", "dropout", "spikes", "bias", "disconnect")
+KINDS = ("stuck", "dropout", "spikes", "bias", "disconnect", "field")
 SPIKE_DEFAULT = {"acc": 2.0, "gyro": 200.0, "mag": 1.0, "baro": 50.0, "range": 100.0}
 _PARAMS = {
     "stuck": {"value"},
@@ -32,6 +38,7 @@ _PARAMS = {
     "spikes": {"prob", "magnitude"},
     "bias": {"value"},
     "disconnect": set(),
+    "field": {"value"},
 }
 
 
@@ -61,14 +68,22 @@ def _number(value: Any, what: str) -> float:
     return float(value)
 
 
-def make_fault(kind: str, sensors: dict[str, int], **params: Any) -> Fault:
-    """Validate a fault request for a board whose ``sensors`` map name -> number of axes;
-    raise ValueError with a clear message on a bad request."""
+def make_fault(
+    kind: str, sensors: dict[str, int], fields: tuple[str, ...] = (), **params: Any
+) -> Fault:
+    """Validate a fault request for a board whose ``sensors`` map name -> number of axes
+    (``fields``: those of them that sense an ambient field, for the ``field`` kind); raise
+    ValueError with a clear message on a bad request."""
     if kind not in KINDS:
         raise ValueError(f"unknown fault {kind!r}; choose one of {(*KINDS, 'clear')}")
     sensor = params.pop("sensor", None)
     if sensor is not None and sensor not in sensors:
         raise ValueError(f"fault sensor must be one of {sorted(sensors)}, got {sensor!r}")
+    if kind == "field" and sensor not in fields:
+        raise ValueError(
+            "fault 'field' needs 'sensor': one that senses an ambient field on this board "
+            f"({', '.join(fields) or 'none'}), got {sensor!r}"
+        )
     duration = params.pop("duration", None)
     until = None
     if duration is not None:
@@ -103,21 +118,24 @@ def make_fault(kind: str, sensors: dict[str, int], **params: Any) -> Fault:
             clean["value"] = _number(v, "fault value")
     if kind == "bias" and "value" not in clean:
         raise ValueError("fault 'bias' needs a 'value' (a number or one per axis)")
+    if kind == "field" and not isinstance(clean.get("value"), list):
+        raise ValueError("fault 'field' needs a 'value' with one number per axis (world frame)")
     return Fault(kind, sensor, clean, until)
 
 
 class FaultState:
     """The fault currently applied by one board (at most one at a time; thread-safe)."""
 
-    def __init__(self, sensors: dict[str, int]) -> None:
+    def __init__(self, sensors: dict[str, int], fields: tuple[str, ...] = ()) -> None:
         self.sensors = sensors
+        self.fields = fields
         self._fault: Fault | None = None
         self._lock = threading.Lock()
         self.applied = 0
 
     def set(self, kind: str, **params: Any) -> Fault:
         """Replace the current fault by a new one (see :func:`make_fault`)."""
-        fault = make_fault(kind, self.sensors, **params)
+        fault = make_fault(kind, self.sensors, self.fields, **params)
         with self._lock:
             self._fault = fault
         return fault
@@ -133,6 +151,15 @@ class FaultState:
             if f is not None and f.until is not None and time.monotonic() >= f.until:
                 self._fault = f = None
             return f
+
+    def field(self, sensor: str) -> tuple[float, ...] | None:
+        """The external world-frame field a ``field`` fault adds to ``sensor`` now, or None.
+        The board adds it to what the sensor senses before its error model."""
+        f = self.current()
+        if f is None or f.kind != "field" or f.sensor != sensor:
+            return None
+        self.applied += 1
+        return tuple(f.params["value"])
 
     def before_read(self, sensor: str, rng: random.Random) -> None:
         """Raise for a disconnection or a dropout affecting ``sensor``."""

@@ -3,8 +3,8 @@
 ``hera/<cluster>/ctl/<node>/board`` with a JSON request:
 
 - ``{}``: list the node's boards with their counters and current fault;
-- ``{"board": "<id>", "fault": "stuck|dropout|spikes|bias|disconnect", ...params}``: switch
-  that fault on (replacing any previous one);
+- ``{"board": "<id>", "fault": "stuck|dropout|spikes|bias|disconnect|field", ...params}``:
+  switch that fault on (replacing any previous one);
 - ``{"board": "<id>", "fault": "clear"}``: remove it.
 
 Board ids are ``"<node>/<board>"``; a bare ``"<board>"`` works when only one board of the

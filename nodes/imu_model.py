@@ -123,9 +123,11 @@ def ideal_gyro(m: Motion, mount: Quat) -> Vec3:
     return gm.scale(gm.unrotate(mount, m.angular_rate), 180.0 / math.pi)
 
 
-def ideal_mag(m: Motion, mount: Quat, env: Environment) -> Vec3:
-    """Earth's field (gauss) in the board frame: R_m^T R^T B_earth."""
-    return gm.unrotate(mount, gm.unrotate(m.orientation, env.field))
+def ideal_mag(m: Motion, mount: Quat, env: Environment, extra: Vec3 | None = None) -> Vec3:
+    """Earth's field (gauss) in the board frame: R_m^T R^T B_earth; ``extra`` (gauss, world
+    frame) is a disturbance added to Earth's field (the ``field`` board fault)."""
+    field = env.field if extra is None else gm.add(env.field, extra)
+    return gm.unrotate(mount, gm.unrotate(m.orientation, field))
 
 
 def ideal_baro(m: Motion, env: Environment) -> float:

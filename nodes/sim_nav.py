@@ -60,7 +60,7 @@ class SimNavBoard:
             model.acc_run_bias, "acc_run_bias", model.acc_run_bias_sigma, 0.0
         )
         self.walks = [RandomWalk(self.seed, f"gyro{i}", model.gyro_drift) for i in range(3)]
-        self.faults = FaultState(self.sensors)
+        self.faults = FaultState(self.sensors, fields=("mag",))
         self.reads = 0
         self._held: Motion | None = None
         self._lock = threading.Lock()
@@ -181,7 +181,9 @@ class SimNavBoard:
                 for i in range(3)
             )
         elif sensor == "mag":
-            b = gm.mat_vec(md.soft_iron, ideal_mag(m, self.mount, self.env))
+            extra = self.faults.field("mag")  # a disturbance fixed in the world frame
+            ideal = ideal_mag(m, self.mount, self.env, extra)  # type: ignore[arg-type]
+            b = gm.mat_vec(md.soft_iron, ideal)
             vals = tuple(b[i] + md.hard_iron[i] + rng.gauss(0.0, md.mag_noise) for i in range(3))
         else:
             vals = (ideal_baro(m, self.env) + md.baro_bias + rng.gauss(0.0, md.baro_noise),)

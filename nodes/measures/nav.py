@@ -28,10 +28,10 @@ from hera.nodes.calibration import (
     rotate_y,
     stored_or_run,
 )
-from hera.nodes.driver import NavDriver, NoReading, SimulatedBoard
+from hera.nodes.driver import ImuSample, NavDriver, NoReading, SimulatedBoard
 from hera.nodes.truth import TruthRecorder, want_truth
 from hera.nodes.world import G, State
-from hera.schema import BOOL, STR, Setting, Table, number
+from hera.schema import BOOL, STR, Setting, Table, choice, number
 
 
 def nav_args(calib_samples: int, *extra: Setting) -> Table:
@@ -192,11 +192,46 @@ class Mag(_NavMeasure):
         return Reading((h,), s.t)
 
 
+def is_matrix(value: Any) -> bool:
+    """True if ``value`` is a 3x3 matrix of finite numbers (a list of 3 rows)."""
+    return isinstance(value, (list, tuple)) and len(value) == 3 and all(is_vec(r) for r in value)
+
+
+def nav3_values(s: ImuSample, cal: Mapping[str, Any]) -> tuple[float, ...]:
+    """The 9 values ``nav3`` publishes for one board reading, given its calibration ``cal``
+    (:func:`~hera.nodes.calibration.calibrate_nav3`): acc (m/s^2), gyro less its bias
+    (rad/s), magnetometer less its hard iron (gauss). A ``full`` calibration also corrects
+    the accelerometer's bias and scale and the magnetometer's soft iron, then turns all
+    three into the body frame (``mount``)."""
+    m = s.mag
+    if m is None:
+        raise ValueError("nav3 needs a magnetometer reading")
+    k = math.pi / 180.0
+    g0, b = cal["gyro"], cal["mag"]
+    a = s.acc
+    gyro = ((s.gyro[0] - g0[0]) * k, (s.gyro[1] - g0[1]) * k, (s.gyro[2] - g0[2]) * k)
+    mag = (m[0] - b[0], m[1] - b[1], m[2] - b[2])
+    mount = cal.get("mount")
+    if mount is not None:
+        ab = cal["acc_bias"]
+        a = gm.mat_vec(cal["acc_scale"], (a[0] - ab[0], a[1] - ab[1], a[2] - ab[2]))
+        mag = gm.mat_vec(cal["soft_iron"], mag)
+        a, gyro, mag = gm.mat_vec(mount, a), gm.mat_vec(mount, gyro), gm.mat_vec(mount, mag)
+    return (a[0] * G, a[1] * G, a[2] * G, *gyro, *mag)
+
+
 class Nav3(_NavMeasure):
     """The 9-axis IMU: acc (m/s^2, specific force), gyro (rad/s, bias removed), mag (gauss,
     hard-iron removed), all in the right-handed board frame (x forward, y left, z up; flat and
     still reads acc (0, 0, +9.81)): down is -acc. Calibration (thesis ch. 7.1.1): gyro mean of
     ``calib_samples`` (300) still samples; 3-D hard iron by turns of 180 deg about z then x.
+
+    Beyond the thesis, ``calibration = "full"`` (default ``"thesis"``): the board is turned
+    through 48 poses and ellipsoid fits give the accelerometer's bias and scale and the
+    magnetometer's hard and soft iron (thesis ch. 7.1.1 left soft iron out); all three
+    vectors are then published in the body frame, the body being level in the calibration
+    pose (the mounting tilt taken out, see :func:`~hera.nodes.calibration.calibrate_nav3`).
+    :func:`nav3_values` says exactly what is published.
     """
 
     name = "nav3"
@@ -213,18 +248,41 @@ class Nav3(_NavMeasure):
         "mag_z [gauss]",
     )
 
-    arguments = nav_args(300)
+    arguments = nav_args(
+        300,
+        Setting(
+            "calibration",
+            choice("thesis", "full"),
+            "thesis",
+            "`thesis`: gyro bias, hard iron (ch. 7.1.1); `full`: + accelerometer bias and "
+            "scale, soft iron, body frame",
+        ),
+    )
 
     def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
         args = self._setup(args, ctx)
         n = args["calib_samples"]
-        cal = stored_or_run(
+        full = args["calibration"] == "full"
+        self.cal = stored_or_run(
             ctx,
-            lambda: calibrate_nav3(self.board, n_gyro=n),
-            lambda c: isinstance(c, Mapping) and is_vec(c.get("gyro")) and is_vec(c.get("mag")),
+            lambda: calibrate_nav3(self.board, n_gyro=n, full=full),
+            lambda c: (
+                isinstance(c, Mapping)
+                and is_vec(c.get("gyro"))
+                and is_vec(c.get("mag"))
+                and (
+                    not full
+                    or (
+                        is_vec(c.get("acc_bias"))
+                        and all(is_matrix(c.get(k)) for k in ("acc_scale", "soft_iron", "mount"))
+                    )
+                )
+            ),
         )
-        self.gyro0: gm.Vec3 = tuple(cal["gyro"])  # type: ignore[assignment]
-        self.mag0: gm.Vec3 = tuple(cal["mag"])  # type: ignore[assignment]
+        if not full:  # a full calibration stored earlier: use only its thesis part
+            self.cal.pop("mount", None)
+        self.gyro0: gm.Vec3 = tuple(self.cal["gyro"])  # type: ignore[assignment]
+        self.mag0: gm.Vec3 = tuple(self.cal["mag"])  # type: ignore[assignment]
 
     def measure(self) -> Reading | None:
         try:
@@ -232,22 +290,7 @@ class Nav3(_NavMeasure):
         except NoReading:
             self.ctx.count("dropouts")
             return None
-        m = s.mag
-        assert m is not None
-        k = math.pi / 180.0
-        g0 = self.gyro0
-        b = self.mag0
-        values = (
-            s.acc[0] * G,
-            s.acc[1] * G,
-            s.acc[2] * G,
-            (s.gyro[0] - g0[0]) * k,
-            (s.gyro[1] - g0[1]) * k,
-            (s.gyro[2] - g0[2]) * k,
-            m[0] - b[0],
-            m[1] - b[1],
-            m[2] - b[2],
-        )
+        values = nav3_values(s, self.cal)
         if self._truth is not None:
             st = self._state(s.t)
             if st is not None:

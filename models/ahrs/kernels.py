@@ -1,0 +1,300 @@
+"""The arithmetic of the multiplicative (error-state) EKF of :mod:`.mekf`, on numpy.
+
+The filter keeps a unit quaternion ``q`` (body -> reference, scalar first), the gyroscope
+bias ``b`` (rad/s) and the 6x6 covariance ``P`` of the error state ``dx = [dtheta, db]``:
+``dtheta`` a small rotation in the **body** frame, ``q_true = q * Exp(dtheta)`` (Markley
+2003, "Attitude error representations for Kalman filtering"; Sola 2017, "Quaternion
+kinematics for the error-state Kalman filter", sections 5 and 7). Every function updates
+``q``, ``b`` and ``P`` in place and writes what the caller needs to decide into ``out``.
+
+- :func:`predict` (Sola eq. 269-270): ``w = w_m - b``, ``q <- q * Exp(w dt)``,
+  ``P <- Phi P Phi^T + Q`` with ``Phi = [[Exp(w dt)^T, -I dt], [0, I]]`` and
+  ``Q = diag(q_att, q_bias I)`` (``q_att`` one variance per gyroscope axis);
+- :func:`vector_update`: a reference vector seen in the body, ``z = s R(q)^T r + v``
+  (``s`` its length, e.g. g for the accelerometer): ``H = [s [v x], 0]`` with ``v =
+  R^T r``; its noise ``r_var I + R^T C R``, where ``C`` is the covariance of ``R z`` in
+  the reference frame, averaged exponentially (weight ``alpha`` per sample, West 1979's
+  update): what moves ``z`` there beyond the noise is not the reference vector (for the
+  accelerometer: linear acceleration), and it is measured without the filter's own gain.
+  ``C`` is first shrunk by the share of its trace the sensor's noise ``3 r_var`` explains
+  (that is in ``r_var`` already), then counted ``kappa`` times, the samples per
+  independent one: linear acceleration is not white (a shake at f Hz repeats itself), and
+  a filter that took each of its samples as independent would follow it. ``kappa = pi
+  sqrt(var / var_step)`` (``var`` and ``var_step`` the exponential variances of the vector
+  and of its steps from one sample to the next), the sample rate over twice the motion's
+  frequency for a sinusoid, clipped to [1, ``par[5]``];
+- :func:`mag_update`, in one of two modes. *Vector*: the field's direction, a unit vector,
+  observed as ``R(q)^T m_ref`` like the accelerometer (``m_ref`` from the learnt dip angle
+  and ``north``; noise ``r_rel^2`` per axis), so that the magnetometer helps the tilt too
+  (it is not disturbed by linear acceleration). *Heading*: the magnetometer's heading,
+  correcting the heading only, so that the field cannot tilt the estimate at all: the
+  measured field turned into the reference frame,
+  its part across ``up``, and the angle ``alpha`` from ``north`` to it about ``up``. To
+  first order ``alpha = -(up + tan(dip) north)^T R(q) dtheta``: a tilt error about north
+  leaks into the measured heading through the dip angle, and is so accounted for in S;
+  the gain is then projected onto the heading axis (the tilt and the x/y bias states are
+  "considered", Schmidt 1966: their uncertainty is counted, they are not corrected; the
+  Joseph form keeps P consistent with that gain). Noise ``(r_rel |m| / |m_h|)^2`` rad^2 (a
+  relative field noise seen on the horizontal part). The field's norm and dip angle are
+  checked against a window first, and the heading innovation against a step window: a
+  field whose heading jumps while the gyroscope saw no turn is a disturbance, whatever
+  the filter's own (possibly wide) heading variance would let through.
+
+Updates use the Joseph form ``P = (I - K H) P (I - K H)^T + K R K^T``, then the error is
+injected, ``q <- q * Exp(dtheta)``, ``b <- b + db``, and ``q`` is normalised (the reset's
+covariance Jacobian, ``I - [dtheta/2 x]``, is taken as I: dtheta is small).
+
+:mod:`.kernels_numba` holds the same functions as compiled loops; a test holds the two to
+the same numbers.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+ACC_PARAMS = 6
+"""``par`` of :func:`vector_update`: reference vector (3), its length s, the noise variance,
+the largest correlation factor."""
+STATS = 17
+"""``stats`` of :func:`vector_update`: the exponential mean (3) and covariance (3x3, rows) of
+the observed vector in the reference frame, the last such vector (3), the exponential
+mean of its squared step from one sample to the next (1), and whether there was a last
+one (1)."""
+MAG_PARAMS = 14
+"""``par`` of :func:`mag_update`: up (3), north (3), r_rel, the field's expected norm (0: no
+window) and relative tolerance, its expected dip angle and tolerance (rad; widened by three
+standard deviations of the filter's own tilt), the mode (1: the field's direction as a
+vector, 0: its heading only), and the step window of the heading innovation: its recent
+mean and the largest step from it (rad; inf: none)."""
+
+ACCEPTED, REJECTED, OUT_OF_WINDOW, UNUSABLE = 1.0, 0.0, -1.0, -2.0
+"""Status written to ``out[1]`` of an update: fused, gated out by the chi-square test,
+outside the norm/dip window, or unusable (field along ``up``, a singular S)."""
+
+
+def rotvec_quat(v: np.ndarray) -> np.ndarray:
+    """``Exp(v)``: the unit quaternion of the rotation vector ``v`` (rad)."""
+    a = float(np.sqrt(v @ v))
+    if a < 1e-8:
+        return np.array((1.0, 0.5 * v[0], 0.5 * v[1], 0.5 * v[2])) / math.sqrt(1.0 + 0.25 * a * a)
+    s = math.sin(0.5 * a) / a
+    return np.array((math.cos(0.5 * a), s * v[0], s * v[1], s * v[2]))
+
+
+def quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton product ``p * q``."""
+    w1, x1, y1, z1 = p
+    w2, x2, y2, z2 = q
+    return np.array(
+        (
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        )
+    )
+
+
+def quat_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a unit quaternion (body -> reference)."""
+    w, x, y, z = q
+    return np.array(
+        (
+            (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+            (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+            (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
+        )
+    )
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """``[v x]``: ``skew(v) @ u == cross(v, u)``."""
+    return np.array(((0.0, -v[2], v[1]), (v[2], 0.0, -v[0]), (-v[1], v[0], 0.0)))
+
+
+def _inject(q: np.ndarray, b: np.ndarray, dx: np.ndarray) -> None:
+    qn = quat_mul(q, rotvec_quat(dx[:3]))
+    q[:] = qn / math.sqrt(float(qn @ qn))
+    b += dx[3:]
+
+
+def _joseph(P: np.ndarray, K: np.ndarray, H: np.ndarray, r_var: float) -> None:
+    A = np.eye(6) - K @ H
+    Pn = A @ P @ A.T + r_var * (K @ K.T)
+    P[:] = 0.5 * (Pn + Pn.T)
+
+
+def predict(
+    q: np.ndarray,
+    b: np.ndarray,
+    P: np.ndarray,
+    wx: float,
+    wy: float,
+    wz: float,
+    dt: float,
+    q_att: np.ndarray,
+    q_bias: float,
+) -> None:
+    """Propagate by ``dt`` s with the measured body rate ``(wx, wy, wz)`` (rad/s); ``q_att``
+    (rad^2, one per axis) and ``q_bias`` ((rad/s)^2) are the process noise added over
+    ``dt``."""
+    w = np.array((wx - b[0], wy - b[1], wz - b[2]))
+    dq = rotvec_quat(w * dt)
+    qn = quat_mul(q, dq)
+    q[:] = qn / math.sqrt(float(qn @ qn))
+    Phi = np.eye(6)
+    Phi[:3, :3] = quat_matrix(dq).T
+    Phi[:3, 3:] = -dt * np.eye(3)
+    Pn = Phi @ P @ Phi.T
+    Pn[:3, :3] += np.diag(q_att)
+    Pn[3:, 3:] += q_bias * np.eye(3)
+    P[:] = 0.5 * (Pn + Pn.T)
+
+
+def _vector_core(
+    q: np.ndarray,
+    b: np.ndarray,
+    P: np.ndarray,
+    z: np.ndarray,
+    v: np.ndarray,
+    s: float,
+    Rn: np.ndarray,
+    gate: float,
+    out: np.ndarray,
+) -> None:
+    """Fuse ``z`` seen as ``s v`` (``v`` a unit vector in the body frame, ``R(q)^T`` of the
+    reference one) with noise covariance ``Rn``: NIS into ``out[0]``, status ``out[1]``."""
+    nu = z - s * v
+    H = np.zeros((3, 6))
+    H[:, :3] = s * skew(v)
+    S = H @ P @ H.T + Rn
+    try:
+        L = np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        out[0], out[1] = math.inf, UNUSABLE
+        return
+    y = np.linalg.solve(L, nu)
+    out[0] = nis = float(y @ y)
+    if not nis <= gate:
+        out[1] = REJECTED
+        return
+    K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S and P symmetric)
+    dx = K @ nu
+    A = np.eye(6) - K @ H
+    Pn = A @ P @ A.T + K @ Rn @ K.T
+    P[:] = 0.5 * (Pn + Pn.T)
+    _inject(q, b, dx)
+    out[1] = ACCEPTED
+
+
+def vector_update(
+    q: np.ndarray,
+    b: np.ndarray,
+    P: np.ndarray,
+    zx: float,
+    zy: float,
+    zz: float,
+    par: np.ndarray,
+    stats: np.ndarray,
+    alpha: float,
+    gate: float,
+    out: np.ndarray,
+) -> None:
+    """Fuse ``z`` (body frame) seen as ``par[3] * R(q)^T par[0:3]``, if its NIS is at most
+    ``gate``; first fold ``R(q) z`` into ``stats`` with weight ``alpha``. ``out``: NIS,
+    status, |innovation|^2, trace of the added covariance ``R^T C R``."""
+    s, r_var = par[3], par[4]
+    Rq = quat_matrix(q)
+    z = np.array((zx, zy, zz))
+    zn = Rq @ z
+    d = zn - stats[0:3]
+    stats[0:3] += alpha * d
+    C = (1.0 - alpha) * (stats[3:12].reshape(3, 3) + alpha * np.outer(d, d))
+    stats[3:12] = C.reshape(9)
+    if stats[16] > 0.0:
+        step = zn - stats[12:15]
+        stats[15] += alpha * (float(step @ step) - stats[15])
+    stats[12:15] = zn
+    stats[16] = 1.0
+    var = float(np.trace(C))
+    kappa = 1.0
+    if stats[15] > 0.0:
+        kappa = min(max(math.pi * math.sqrt(var / stats[15]), 1.0), par[5])
+    # the sensor's own noise is in r_var already: only the excess is motion
+    shrink = max(0.0, 1.0 - 3.0 * r_var / var) if var > 0.0 else 0.0
+    Cb = (kappa * shrink) * (Rq.T @ C @ Rq)
+    v = Rq.T @ par[0:3]
+    Rn = r_var * np.eye(3) + Cb
+    out[2] = float(np.sum((z - s * v) ** 2))
+    out[3] = float(np.trace(Cb))
+    _vector_core(q, b, P, z, v, s, Rn, gate, out)
+
+
+def mag_update(
+    q: np.ndarray,
+    b: np.ndarray,
+    P: np.ndarray,
+    mx: float,
+    my: float,
+    mz: float,
+    par: np.ndarray,
+    gate: float,
+    out: np.ndarray,
+) -> None:
+    """Fuse the field ``m`` (body frame), if its norm and dip angle lie in their windows
+    (``par``, see :data:`MAG_PARAMS`) and its NIS is at most ``gate``: its direction as a
+    unit vector (``par[11]`` = 1, once the dip is known) or its heading only. ``out``: NIS,
+    status, |m|, dip angle (rad, positive below the horizontal), alpha (rad)."""
+    up, north = par[0:3], par[3:6]
+    r_rel = par[6]
+    R = quat_matrix(q)
+    m = np.array((mx, my, mz))
+    norm = float(np.sqrt(m @ m))
+    mn = R @ m
+    mu = float(up @ mn)
+    mh = mn - mu * up
+    h = float(np.sqrt(mh @ mh))
+    out[2] = norm
+    out[3] = dip = math.atan2(-mu, h)
+    out[4] = 0.0
+    if not h > 1e-9 * (norm + 1e-300):
+        out[0], out[1] = math.inf, UNUSABLE
+        return
+    ub = R.T @ up  # the heading axis in the body frame
+    if par[7] > 0.0:
+        Pa = P[:3, :3]
+        tilt_sd = math.sqrt(max(0.0, float(np.trace(Pa)) - float(ub @ Pa @ ub)) / 2.0)
+        tol = par[10] + 3.0 * tilt_sd
+        if not (abs(norm - par[7]) <= par[8] * par[7] and abs(dip - par[9]) <= tol):
+            out[0], out[1] = math.inf, OUT_OF_WINDOW
+            return
+    alpha = math.atan2(float(up @ np.cross(north, mh)), float(north @ mh))
+    out[4] = alpha
+    if abs(alpha - par[12]) > par[13]:  # the field's heading jumped: not the body's
+        out[0], out[1] = math.inf, OUT_OF_WINDOW
+        return
+    if par[11] > 0.0 and par[7] > 0.0:  # the direction as a unit vector
+        mref = math.cos(par[9]) * north - math.sin(par[9]) * up
+        _vector_core(q, b, P, m / norm, R.T @ mref, 1.0, r_rel * r_rel * np.eye(3), gate, out)
+        return
+    r_var = (r_rel * norm / h) ** 2
+    H = np.zeros((1, 6))
+    H[0, :3] = -(ub + (-mu / h) * (R.T @ north))
+    S = float((H @ P @ H.T)[0, 0]) + r_var
+    if not S > 0.0:
+        out[0], out[1] = math.inf, UNUSABLE
+        return
+    out[0] = nis = alpha * alpha / S
+    if not nis <= gate:
+        out[1] = REJECTED
+        return
+    K = (P @ H.T) / S
+    Pu = np.outer(ub, ub)
+    K[:3] = Pu @ K[:3]
+    K[3:] = Pu @ K[3:]
+    dx = K[:, 0] * alpha
+    _joseph(P, K, H, r_var)
+    _inject(q, b, dx)
+    out[1] = ACCEPTED

@@ -1,0 +1,413 @@
+"""The arithmetic of :mod:`.kernels` as compiled loops (numba), for the AHRS's hot path.
+
+Same functions, same arguments, same results to roundoff; the equations are cited in
+:mod:`.kernels`. Written as plain loops over small float64 arrays so that one call costs
+about a microsecond. Imported only when ``hera.estimation``'s backend is numba (numba is an
+optional dependency); :func:`compiled` compiles every kernel once per process (or loads it
+from numba's cache) and returns them.
+"""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numba
+import numpy as np
+
+from hera.models.ahrs.kernels import ACCEPTED, OUT_OF_WINDOW, REJECTED, UNUSABLE
+
+_jit = numba.njit(cache=True, error_model="numpy")
+
+
+@_jit
+def _qmat(q0, q1, q2, q3, R):
+    R[0, 0] = 1.0 - 2.0 * (q2 * q2 + q3 * q3)
+    R[0, 1] = 2.0 * (q1 * q2 - q0 * q3)
+    R[0, 2] = 2.0 * (q1 * q3 + q0 * q2)
+    R[1, 0] = 2.0 * (q1 * q2 + q0 * q3)
+    R[1, 1] = 1.0 - 2.0 * (q1 * q1 + q3 * q3)
+    R[1, 2] = 2.0 * (q2 * q3 - q0 * q1)
+    R[2, 0] = 2.0 * (q1 * q3 - q0 * q2)
+    R[2, 1] = 2.0 * (q2 * q3 + q0 * q1)
+    R[2, 2] = 1.0 - 2.0 * (q1 * q1 + q2 * q2)
+
+
+@_jit
+def _rotvec(vx, vy, vz):
+    a = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if a < 1e-8:
+        k = 1.0 / math.sqrt(1.0 + 0.25 * a * a)
+        return k, 0.5 * vx * k, 0.5 * vy * k, 0.5 * vz * k
+    s = math.sin(0.5 * a) / a
+    return math.cos(0.5 * a), s * vx, s * vy, s * vz
+
+
+@_jit
+def _qmul(w1, x1, y1, z1, w2, x2, y2, z2):
+    return (
+        w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+    )
+
+
+@_jit
+def _inject(q, b, dx):
+    dw, dx1, dy1, dz1 = _rotvec(dx[0], dx[1], dx[2])
+    w, x, y, z = _qmul(q[0], q[1], q[2], q[3], dw, dx1, dy1, dz1)
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    q[0], q[1], q[2], q[3] = w / n, x / n, y / n, z / n
+    b[0] += dx[3]
+    b[1] += dx[4]
+    b[2] += dx[5]
+
+
+@_jit
+def _joseph(P, K, H, Rn, m):
+    """P <- (I - K H) P (I - K H)^T + K Rn K^T for K (6, m), H (m, 6), Rn (m, m)."""
+    A = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            s = 1.0 if i == j else 0.0
+            for k in range(m):
+                s -= K[i, k] * H[k, j]
+            A[i, j] = s
+    AP = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            s = 0.0
+            for k in range(6):
+                s += A[i, k] * P[k, j]
+            AP[i, j] = s
+    KR = np.empty((6, m))
+    for i in range(6):
+        for j in range(m):
+            s = 0.0
+            for k in range(m):
+                s += K[i, k] * Rn[k, j]
+            KR[i, j] = s
+    out = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            s = 0.0
+            for k in range(6):
+                s += AP[i, k] * A[j, k]
+            for k in range(m):
+                s += KR[i, k] * K[j, k]
+            out[i, j] = s
+    for i in range(6):
+        for j in range(6):
+            P[i, j] = 0.5 * (out[i, j] + out[j, i])
+
+
+@_jit
+def _vector_core(q, b, P, z, v, s, Rn, gate, out):
+    nu = np.empty(3)
+    for i in range(3):
+        nu[i] = z[i] - s * v[i]
+    H = np.zeros((3, 6))
+    H[0, 1], H[0, 2] = -s * v[2], s * v[1]
+    H[1, 0], H[1, 2] = s * v[2], -s * v[0]
+    H[2, 0], H[2, 1] = -s * v[1], s * v[0]
+    PHt = np.empty((6, 3))
+    for i in range(6):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += P[i, k] * H[j, k]
+            PHt[i, j] = acc
+    S = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            acc = Rn[i, j]
+            for k in range(3):
+                acc += H[i, k] * PHt[k, j]
+            S[i, j] = acc
+    # Cholesky S = L L^T
+    L = np.zeros((3, 3))
+    for j in range(3):
+        acc = S[j, j]
+        for k in range(j):
+            acc -= L[j, k] * L[j, k]
+        if not acc > 0.0:
+            out[0] = math.inf
+            out[1] = UNUSABLE
+            return
+        L[j, j] = math.sqrt(acc)
+        for i in range(j + 1, 3):
+            acc = S[i, j]
+            for k in range(j):
+                acc -= L[i, k] * L[j, k]
+            L[i, j] = acc / L[j, j]
+    y = np.empty(3)
+    nis = 0.0
+    for i in range(3):
+        acc = nu[i]
+        for k in range(i):
+            acc -= L[i, k] * y[k]
+        y[i] = acc / L[i, i]
+        nis += y[i] * y[i]
+    out[0] = nis
+    if not nis <= gate:
+        out[1] = REJECTED
+        return
+    # S^-1 = L^-T L^-1
+    Li = np.zeros((3, 3))
+    for j in range(3):
+        Li[j, j] = 1.0 / L[j, j]
+        for i in range(j + 1, 3):
+            acc = 0.0
+            for k in range(j, i):
+                acc -= L[i, k] * Li[k, j]
+            Li[i, j] = acc / L[i, i]
+    Si = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += Li[k, i] * Li[k, j]
+            Si[i, j] = acc
+    K = np.empty((6, 3))
+    for i in range(6):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += PHt[i, k] * Si[k, j]
+            K[i, j] = acc
+    dx = np.empty(6)
+    for i in range(6):
+        dx[i] = K[i, 0] * nu[0] + K[i, 1] * nu[1] + K[i, 2] * nu[2]
+    _joseph(P, K, H, Rn, 3)
+    _inject(q, b, dx)
+    out[1] = ACCEPTED
+
+
+@_jit
+def predict(q, b, P, wx, wy, wz, dt, q_att, q_bias):
+    wx -= b[0]
+    wy -= b[1]
+    wz -= b[2]
+    dw, dx, dy, dz = _rotvec(wx * dt, wy * dt, wz * dt)
+    w, x, y, z = _qmul(q[0], q[1], q[2], q[3], dw, dx, dy, dz)
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    q[0], q[1], q[2], q[3] = w / n, x / n, y / n, z / n
+    Rd = np.empty((3, 3))
+    _qmat(dw, dx, dy, dz, Rd)
+    Phi = np.zeros((6, 6))
+    for i in range(3):
+        for j in range(3):
+            Phi[i, j] = Rd[j, i]
+        Phi[i, 3 + i] = -dt
+        Phi[3 + i, 3 + i] = 1.0
+    FP = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            s = 0.0
+            for k in range(6):
+                s += Phi[i, k] * P[k, j]
+            FP[i, j] = s
+    out = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            s = 0.0
+            for k in range(6):
+                s += FP[i, k] * Phi[j, k]
+            out[i, j] = s
+    for i in range(3):
+        out[i, i] += q_att[i]
+        out[3 + i, 3 + i] += q_bias
+    for i in range(6):
+        for j in range(6):
+            P[i, j] = 0.5 * (out[i, j] + out[j, i])
+
+
+@_jit
+def vector_update(q, b, P, zx, zy, zz, par, stats, alpha, gate, out):
+    s = par[3]
+    r_var = par[4]
+    R = np.empty((3, 3))
+    _qmat(q[0], q[1], q[2], q[3], R)
+    z = np.empty(3)
+    z[0], z[1], z[2] = zx, zy, zz
+    zn = np.empty(3)
+    d = np.empty(3)
+    for i in range(3):
+        zn[i] = R[i, 0] * zx + R[i, 1] * zy + R[i, 2] * zz
+        d[i] = zn[i] - stats[i]
+    for i in range(3):
+        stats[i] += alpha * d[i]
+    C = np.empty((3, 3))
+    var = 0.0
+    for i in range(3):
+        for j in range(3):
+            C[i, j] = (1.0 - alpha) * (stats[3 + 3 * i + j] + alpha * d[i] * d[j])
+            stats[3 + 3 * i + j] = C[i, j]
+        var += C[i, i]
+    if stats[16] > 0.0:
+        st = 0.0
+        for i in range(3):
+            e = zn[i] - stats[12 + i]
+            st += e * e
+        stats[15] += alpha * (st - stats[15])
+    for i in range(3):
+        stats[12 + i] = zn[i]
+    stats[16] = 1.0
+    kappa = 1.0
+    if stats[15] > 0.0:
+        kappa = min(max(math.pi * math.sqrt(var / stats[15]), 1.0), par[5])
+    shrink = max(0.0, 1.0 - 3.0 * r_var / var) if var > 0.0 else 0.0
+    kappa *= shrink
+    # Cb = kappa R^T C R; Rn = r_var I + Cb
+    CR = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += C[i, k] * R[k, j]
+            CR[i, j] = acc
+    Rn = np.empty((3, 3))
+    tr = 0.0
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += R[k, i] * CR[k, j]
+            Rn[i, j] = kappa * acc
+        tr += Rn[i, i]
+    for i in range(3):
+        Rn[i, i] += r_var
+    v = np.empty(3)
+    for i in range(3):
+        v[i] = R[0, i] * par[0] + R[1, i] * par[1] + R[2, i] * par[2]
+    nu2 = 0.0
+    for i in range(3):
+        e = z[i] - s * v[i]
+        nu2 += e * e
+    out[2] = nu2
+    out[3] = tr
+    _vector_core(q, b, P, z, v, s, Rn, gate, out)
+
+
+@_jit
+def mag_update(q, b, P, mx, my, mz, par, gate, out):
+    ux, uy, uz = par[0], par[1], par[2]
+    nx, ny, nz = par[3], par[4], par[5]
+    r_rel = par[6]
+    R = np.empty((3, 3))
+    _qmat(q[0], q[1], q[2], q[3], R)
+    norm = math.sqrt(mx * mx + my * my + mz * mz)
+    m0 = R[0, 0] * mx + R[0, 1] * my + R[0, 2] * mz
+    m1 = R[1, 0] * mx + R[1, 1] * my + R[1, 2] * mz
+    m2 = R[2, 0] * mx + R[2, 1] * my + R[2, 2] * mz
+    mu = ux * m0 + uy * m1 + uz * m2
+    h0, h1, h2 = m0 - mu * ux, m1 - mu * uy, m2 - mu * uz
+    h = math.sqrt(h0 * h0 + h1 * h1 + h2 * h2)
+    out[2] = norm
+    dip = math.atan2(-mu, h)
+    out[3] = dip
+    out[4] = 0.0
+    if not h > 1e-9 * (norm + 1e-300):
+        out[0] = math.inf
+        out[1] = UNUSABLE
+        return
+    ub = np.empty(3)
+    for i in range(3):
+        ub[i] = R[0, i] * ux + R[1, i] * uy + R[2, i] * uz
+    if par[7] > 0.0:
+        tr = P[0, 0] + P[1, 1] + P[2, 2]
+        uPu = 0.0
+        for i in range(3):
+            for j in range(3):
+                uPu += ub[i] * P[i, j] * ub[j]
+        tilt_sd = math.sqrt(max(0.0, tr - uPu) / 2.0)
+        tol = par[10] + 3.0 * tilt_sd
+        if not (abs(norm - par[7]) <= par[8] * par[7] and abs(dip - par[9]) <= tol):
+            out[0] = math.inf
+            out[1] = OUT_OF_WINDOW
+            return
+    cx = ny * h2 - nz * h1
+    cy = nz * h0 - nx * h2
+    cz = nx * h1 - ny * h0
+    alpha = math.atan2(ux * cx + uy * cy + uz * cz, nx * h0 + ny * h1 + nz * h2)
+    out[4] = alpha
+    if abs(alpha - par[12]) > par[13]:  # the field's heading jumped: not the body's
+        out[0] = math.inf
+        out[1] = OUT_OF_WINDOW
+        return
+    if par[11] > 0.0 and par[7] > 0.0:  # the direction as a unit vector
+        cd, sd = math.cos(par[9]), math.sin(par[9])
+        z = np.empty(3)
+        z[0], z[1], z[2] = mx / norm, my / norm, mz / norm
+        v = np.empty(3)
+        for i in range(3):
+            v[i] = (
+                R[0, i] * (cd * nx - sd * ux)
+                + R[1, i] * (cd * ny - sd * uy)
+                + R[2, i] * (cd * nz - sd * uz)
+            )
+        Rn = np.zeros((3, 3))
+        for i in range(3):
+            Rn[i, i] = r_rel * r_rel
+        _vector_core(q, b, P, z, v, 1.0, Rn, gate, out)
+        return
+    r_var = (r_rel * norm / h) ** 2
+    t = -mu / h
+    H = np.zeros((1, 6))
+    for i in range(3):
+        H[0, i] = -(ub[i] + t * (R[0, i] * nx + R[1, i] * ny + R[2, i] * nz))
+    PHt = np.empty(6)
+    for i in range(6):
+        acc = 0.0
+        for k in range(3):
+            acc += P[i, k] * H[0, k]
+        PHt[i] = acc
+    S = r_var
+    for k in range(3):
+        S += H[0, k] * PHt[k]
+    if not S > 0.0:
+        out[0] = math.inf
+        out[1] = UNUSABLE
+        return
+    nis = alpha * alpha / S
+    out[0] = nis
+    if not nis <= gate:
+        out[1] = REJECTED
+        return
+    K = np.empty((6, 1))
+    pa = (ub[0] * PHt[0] + ub[1] * PHt[1] + ub[2] * PHt[2]) / S
+    pb = (ub[0] * PHt[3] + ub[1] * PHt[4] + ub[2] * PHt[5]) / S
+    for i in range(3):
+        K[i, 0] = ub[i] * pa
+        K[3 + i, 0] = ub[i] * pb
+    dx = np.empty(6)
+    for i in range(6):
+        dx[i] = K[i, 0] * alpha
+    Rn = np.empty((1, 1))
+    Rn[0, 0] = r_var
+    _joseph(P, K, H, Rn, 1)
+    _inject(q, b, dx)
+    out[1] = ACCEPTED
+
+
+_COMPILED: SimpleNamespace | None = None
+
+
+def compiled() -> SimpleNamespace:
+    """The three kernels, compiled (or loaded from numba's cache) on the first call: call it
+    while a model is built, never in a measure's first step, where compiling would look like
+    a hang."""
+    global _COMPILED
+    if _COMPILED is None:
+        q, b, P = np.array((1.0, 0.0, 0.0, 0.0)), np.zeros(3), np.eye(6) * 1e-4
+        par, stats, out = np.zeros(14), np.zeros(17), np.zeros(5)
+        par[0:3] = (0.0, 0.0, 1.0)
+        par[13] = np.inf
+        predict(q, b, P, 0.0, 0.0, 0.0, 0.01, np.zeros(3), 0.0)
+        vector_update(q, b, P, 0.0, 0.0, 9.8, par, stats, 0.1, 1.0, out)
+        mag_update(q, b, P, 0.0, 0.2, -0.4, par, 1.0, out)
+        _COMPILED = SimpleNamespace(
+            predict=predict, vector_update=vector_update, mag_update=mag_update
+        )
+    return _COMPILED

@@ -1,0 +1,66 @@
+"""Our AHRS against the truth over several seeds of the thesis's benchmark tasks (ch. 7.1.3)
+and under a magnetic disturbance, offline (the model objects the live measures run, fed the
+simulated Pmod NAV's samples in time order: bias, scale errors, drift, noise, soft iron).
+
+Targets (issue 11) with the worst run measured over 3 seeds x 3 start phases (README
+"Attitude and heading"): mean attitude error <= 0.3 deg still (worst 0.13), <= 1 deg on
+rotation_slow (0.11), <= 3 deg on rotation_fast (0.15), <= 1 deg while shaking (0.99: the
+thinnest margin; the start phase of the shake matters); a 10 s magnetic disturbance leaves the
+tilt as it was and the heading within 5 deg (still, rotation_slow, shaking: worst 1.6 deg;
+on rotation_fast the gyroscope's scale error, unestimated, reaches 5.1 deg on one seed of
+five: README).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sim3d import run_ahrs
+
+TARGETS = {"still": 0.3, "rotation_slow": 1.0, "rotation_fast": 3.0, "shaking": 1.0}
+
+
+@pytest.mark.parametrize("scenario", list(TARGETS))
+def test_mean_attitude_error_meets_the_target_on_every_seed_and_start(scenario):
+    """3 seeds of the board (as node nav_1 of deploy/ahrs.toml) x 3 moments the filter
+    starts at (the phase of the motion when it aligns)."""
+    means = [
+        run_ahrs(scenario, seed, start=start, node="nav_1").att.mean()
+        for seed in range(3)
+        for start in (3.0, 8.0, 13.0)
+    ]
+    assert max(means) <= TARGETS[scenario], (scenario, np.round(means, 3))
+
+
+def test_the_thesis_filter_is_run_beside_it_and_fails_while_shaking():
+    """Reported, not required: e11 has no gating, so a shake goes straight into its z."""
+    ours = run_ahrs("shaking", 0).att.mean()
+    thesis = run_ahrs("shaking", 0, thesis=True).att.mean()
+    assert thesis > 10.0 > 1.0 > ours, (thesis, ours)
+
+
+@pytest.mark.parametrize(
+    "field",
+    [
+        [0.1, 0.0, 0.0],  # steel to the east: heading off by 26 deg, norm and dip nearly kept
+        [0.0, -0.15, 0.25],  # a magnet: norm and dip far off
+    ],
+)
+@pytest.mark.parametrize("scenario", ["still", "rotation_slow", "shaking"])
+def test_a_magnetic_disturbance_of_10_s_leaves_tilt_alone_and_heading_within_5_deg(scenario, field):
+    on, off = 3.0 + 15.0, 3.0 + 25.0  # epoch times: 15 s into the run, for 10 s
+    events = [
+        (on, lambda b: b.faults.set("field", sensor="mag", value=field)),
+        (off, lambda b: b.faults.clear()),
+    ]
+    clean = run_ahrs(scenario, 1, 40.0)
+    hit = run_ahrs(scenario, 1, 40.0, events=events)
+    during = (hit.t >= on) & (hit.t < off)
+    assert during.sum() > 900
+    # the field never reaches the tilt: the same tilt errors as without the disturbance
+    assert np.abs(hit.tilt[during] - clean.tilt[during]).max() < 0.05
+    assert np.abs(hit.heading[during]).max() <= 5.0, np.abs(hit.heading[during]).max()
+    refused = hit.counters["mag_rejected"] + hit.counters["mag_disturbed"]
+    assert refused >= 900, hit.counters
+    after = hit.t >= off + 2.0
+    assert np.abs(hit.heading[after]).mean() <= np.abs(clean.heading[after]).mean() + 0.3

@@ -1,0 +1,236 @@
+"""Unit tests of the AHRS: its arithmetic against numerical derivatives, the numba and numpy
+paths against each other, the reference frames, the errors it is scored by, the thesis's
+filter and the fusion models' bookkeeping."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from hera.estimation import active_backend, set_backend
+from hera.models.ahrs import kernels as npk
+from hera.models.ahrs.frames import Reference, triad, triad_quat, world_reference
+from hera.models.ahrs.mekf import Mekf, MekfSettings
+from hera.models.ahrs.model import AhrsModel, ThesisAhrsModel
+from hera.models.ahrs.scoring import (
+    attitude_error_deg,
+    heading_error_deg,
+    tilt_error_deg,
+    yaw_pitch_roll_deg,
+)
+from hera.models.ahrs.thesis import ThesisAhrs
+from hera.nodes.streams import nav3_stream
+from hera.store import Sample
+
+UP = np.array((0.0, 0.0, 1.0))
+FIELD = np.array((0.0, 0.205, -0.44))  # gauss: north along +y, 65 deg below
+
+
+def _rand_quat(rng: np.random.Generator) -> np.ndarray:
+    q = rng.normal(size=4)
+    return q / np.linalg.norm(q)
+
+
+def _perturb(q: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """q * Exp(d): the error-state convention (a small rotation in the body frame)."""
+    return npk.quat_mul(q, npk.rotvec_quat(d))
+
+
+@pytest.fixture(autouse=True)
+def _restore_backend():
+    was = active_backend()
+    yield
+    set_backend(was)
+
+
+def test_vector_jacobian_matches_numerical_derivative():
+    """H = s [v x] of the vector observation is the derivative of s R(q Exp(d))^T r."""
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        q = _rand_quat(rng)
+        h = lambda d, q=q: 9.81 * npk.quat_matrix(_perturb(q, d)).T @ UP  # noqa: E731
+        v = npk.quat_matrix(q).T @ UP
+        H = 9.81 * npk.skew(v)
+        eps = 1e-6
+        num = np.column_stack([(h(eps * e) - h(-eps * e)) / (2 * eps) for e in np.eye(3)])
+        assert np.allclose(H, num, atol=1e-6)
+
+
+def test_heading_jacobian_matches_numerical_derivative():
+    """alpha's derivative is -(up + tan(dip) north)^T R(q): a tilt about north leaks into
+    the measured heading through the dip angle."""
+    rng = np.random.default_rng(2)
+    north = np.array((0.0, 1.0, 0.0))
+    for _ in range(5):
+        q_true = _rand_quat(rng)
+        m = npk.quat_matrix(q_true).T @ FIELD  # what the magnetometer reads
+
+        def alpha(d, q_true=q_true, m=m):
+            R = npk.quat_matrix(_perturb(q_true, d))
+            mn = R @ m
+            mh = mn - (mn @ UP) * UP
+            return math.atan2(UP @ np.cross(north, mh), north @ mh)
+
+        R = npk.quat_matrix(q_true)
+        mn = R @ m
+        tan_dip = -(mn @ UP) / np.linalg.norm(mn - (mn @ UP) * UP)
+        H = -(R.T @ UP + tan_dip * (R.T @ north))
+        eps = 1e-6
+        num = np.array([(alpha(eps * e) - alpha(-eps * e)) / (2 * eps) for e in np.eye(3)])
+        # the filter's estimate is q, the truth q Exp(d): alpha(estimate) = -H d
+        assert np.allclose(-num, H, atol=1e-6)
+
+
+def test_predict_integrates_a_constant_rate_exactly():
+    q, b, P = np.array((1.0, 0.0, 0.0, 0.0)), np.zeros(3), np.eye(6) * 1e-6
+    w = np.array((0.3, -1.2, 2.0))
+    for _ in range(100):
+        npk.predict(q, b, P, *w, 0.01, np.zeros(3), 0.0)
+    want = npk.rotvec_quat(w * 1.0)
+    assert attitude_error_deg(q, want)[0] < 1e-9
+
+
+def test_triad_recovers_an_attitude_from_two_vectors():
+    rng = np.random.default_rng(3)
+    ref = world_reference(90.0)
+    for _ in range(10):
+        q = _rand_quat(rng)
+        R = npk.quat_matrix(q)
+        acc, mag = R.T @ UP * 9.81, R.T @ FIELD
+        assert np.allclose(triad(acc, mag, ref), R, atol=1e-12)
+        assert attitude_error_deg(triad_quat(acc, mag, ref), q)[0] < 1e-6
+    assert triad((0, 0, 1), (0, 0, 2), ref) is None  # parallel: no attitude
+
+
+def test_reference_of_keeps_only_the_horizontal_part_of_north():
+    ref = Reference.of((0, 0, 2), FIELD)
+    assert np.allclose(ref.up, UP) and np.allclose(ref.north, (0, 1, 0))
+    with pytest.raises(ValueError, match="north"):
+        Reference.of((0, 0, 1), (0, 0, -1))
+
+
+def test_errors_split_into_heading_and_tilt():
+    yaw = npk.rotvec_quat(np.radians((0.0, 0.0, 5.0)))
+    pitch = npk.rotvec_quat(np.radians((0.0, 3.0, 0.0)))
+    ident = np.array((1.0, 0.0, 0.0, 0.0))
+    assert attitude_error_deg(yaw, ident)[0] == pytest.approx(5.0)
+    assert tilt_error_deg(yaw, ident)[0] == pytest.approx(0.0, abs=1e-6)
+    assert heading_error_deg(ident, yaw)[0] == pytest.approx(5.0)  # truth 5 deg ccw
+    assert heading_error_deg(yaw, ident)[0] == pytest.approx(-5.0)
+    assert tilt_error_deg(pitch, ident)[0] == pytest.approx(3.0)
+    assert heading_error_deg(pitch, ident)[0] == pytest.approx(0.0, abs=1e-6)
+    assert attitude_error_deg(-yaw, ident)[0] == pytest.approx(5.0)  # q and -q agree
+    ypr = yaw_pitch_roll_deg(npk.quat_mul(yaw, pitch))[0]
+    assert np.allclose(ypr, (5.0, 3.0, 0.0), atol=1e-9)
+
+
+def _run(stream, settings=None, backend="numpy"):
+    set_backend(backend)
+    f = Mekf(world_reference(90.0), settings)
+    out = []
+    for s in stream.samples:
+        v = s.values
+        f.step(s.t, v[0:3], v[3:6], v[6:9])
+        out.append(np.concatenate((f.q, f.b, f.P.ravel())))
+    return np.array(out), f
+
+
+@pytest.mark.parametrize("mode", ["heading", "vector"])
+def test_numba_and_numpy_paths_agree(mode):
+    """The compiled kernels and the numpy ones give the same filter, step after step, on a
+    run with rejected samples in it (a shake, and a magnetic disturbance)."""
+    events = [
+        (3.0, lambda b: b.faults.set("field", sensor="mag", value=[0.2, 0.0, 0.0])),
+        (4.0, lambda b: b.faults.clear()),
+    ]
+    stream = nav3_stream({"scenario": "shaking", "epoch": 0.0}, 6.0, seed=5, events=events)
+    settings = MekfSettings(mag_mode=mode, reacquire_s=0.5)
+    a, fa = _run(stream, settings, "numpy")
+    b, fb = _run(stream, settings, "numba")
+    assert fa.counters == fb.counters
+    assert fa.counters["mag_disturbed"] + fa.counters["mag_rejected"] > 20
+    assert np.abs(a - b).max() < 1e-9
+
+
+def test_the_filter_refuses_bad_settings():
+    with pytest.raises(ValueError, match="gyro_noise"):
+        MekfSettings(gyro_noise=-1.0)
+    with pytest.raises(ValueError, match="gyro_noise"):
+        MekfSettings(gyro_noise=(1e-3, 1e-3))
+    with pytest.raises(ValueError, match="acc_gate"):
+        MekfSettings(acc_gate=1.5)
+    with pytest.raises(ValueError, match="mag_mode"):
+        MekfSettings(mag_mode="compass")
+    assert MekfSettings(gyro_noise=[1e-3, 2e-3, 3e-3]).gyro_noise == (1e-3, 2e-3, 3e-3)
+
+
+def test_alignment_holds_the_estimate_back_then_starts_near_the_truth():
+    stream = nav3_stream({"scenario": "still", "epoch": 0.0, "yaw": 0.5}, 3.0, seed=1)
+    f = Mekf(world_reference(90.0))
+    started_at = None
+    for s in stream.samples:
+        v = s.values
+        used = f.step(s.t, v[0:3], v[3:6], v[6:9])
+        if used and started_at is None:
+            started_at = s.t - stream.samples[0].t
+    assert 0.99 <= started_at <= 1.05
+    truth = npk.rotvec_quat(np.array((0.0, 0.0, 0.5)))
+    assert attitude_error_deg(f.q, truth)[0] < 0.5
+    tilt_sd, head_sd = f.std_deg()
+    assert 0 < tilt_sd < 0.5 and 0 < head_sd < 1.0
+
+
+def test_a_sample_older_than_the_filter_is_skipped():
+    stream = nav3_stream({"scenario": "still", "epoch": 0.0}, 1.5, seed=1)
+    f = Mekf(world_reference(90.0))
+    for s in stream.samples:
+        f.step(s.t, s.values[0:3], s.values[3:6], s.values[6:9])
+    q = f.q.copy()
+    old = stream.samples[-5]
+    assert not f.step(old.t, old.values[0:3], old.values[3:6], old.values[6:9])
+    assert f.counters["skipped"] == 1 and np.array_equal(q, f.q)
+
+
+def test_thesis_filter_aligns_the_sign_and_normalises():
+    ref = world_reference(90.0)
+    f = ThesisAhrs(ref)
+    R = np.eye(3)
+    acc, mag = R.T @ UP * 9.81, R.T @ FIELD
+    assert f.step(0.0, acc, (0, 0, 0), mag)
+    f.ekf.reset(-f.ekf.x, f.ekf.P)  # the other hemisphere: eq. 7.5 must flip it back
+    assert f.step(0.01, acc, (0, 0, 0), mag)
+    assert f.q[0] > 0.99 and np.linalg.norm(f.q) == pytest.approx(1.0)
+    assert not f.step(0.005, acc, (0, 0, 0), mag)  # older than the filter
+    assert not f.step(0.02, acc, (0, 0, 0), None)  # no magnetometer: no q_am
+    assert f.skipped == 2
+
+
+def _nav3(node, t, values):
+    return Sample("nav3", node, 1, t, 0.0, 0.0, tuple(values))
+
+
+def test_models_follow_one_board_and_count_the_others():
+    stream = nav3_stream({"scenario": "still", "epoch": 0.0}, 1.5, seed=2)
+    for model in (AhrsModel(), ThesisAhrsModel()):
+        for s in stream.samples:
+            model.process(s)
+        assert model.board == "nav"
+        est = model.estimate()
+        assert est is not None and len(est[1]) == len(model.columns)
+        assert not model.process(_nav3("other", est[0] + 1, stream.samples[-1].values))
+        assert model.counters()["other"] == 1
+        assert not model.process(Sample("nav3", "nav", 9, est[0] + 2, 0, 0, (1.0, 2.0)))
+    pinned = AhrsModel(board="nav_2")
+    assert not pinned.process(stream.samples[0]) and pinned.estimate() is None
+
+
+def test_model_settings_are_checked_by_the_measure():
+    from hera.models.ahrs.measures import Ahrs
+
+    with pytest.raises(ValueError, match="gyro_noise"):
+        Ahrs.make_model({"gyro_noise": 0})
+    with pytest.raises(ValueError, match="unknown setting 'north'"):
+        Ahrs.make_model({"north": 90})
+    assert Ahrs.make_model({"north_deg": 0.0, "mag_mode": "vector"}).filter.s.mag_mode == "vector"
