@@ -8,6 +8,7 @@ import signal
 import time
 from pathlib import Path
 
+import pytest
 from harness import wait_for
 
 from hera.evaluate import load_outputs, run_spec
@@ -28,6 +29,8 @@ def _rms_cm(rows, truth, lo, hi):
     return 100 * math.sqrt(sum(e * e for e in errs) / len(errs))
 
 
+@pytest.mark.slow  # 66 s; CI keeps the train's live accuracy run and the short thesis-ch5
+# campaign, whose estimate checkers see sonar_2 powered off and the sync leader killed
 def test_e7_keeps_tracking_through_a_sonar_node_kill(cluster):
     """Issue 6: with sonar_1 SIGKILLed, e7's position RMSE from the kill until 5 s after the
     node is back stays within twice the baseline, and within it again afterwards.
