@@ -212,7 +212,7 @@ class Launcher:
             console_dependencies(web is not None, mcap is not None)
         if busy:
             raise SpecError(busy)
-        unset = [p for p in (*spec.nodes, *spec.routers) if not (p.port or p.listen)]
+        unset = spec.unported()
         if spec.base_port == 0 and unset:
             spec = spec.with_ports(free_ports(spec.host, len(unset)))
         if "epoch" not in spec.world:

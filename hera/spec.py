@@ -316,12 +316,27 @@ class ClusterSpec:
         """Every (node name, measure) of the spec, in declaration order."""
         return [(n.name, m) for n in self.nodes for m in n.measures]
 
+    def unported(self) -> list[NodeSpec | RouterSpec]:
+        """The nodes (peers) and routers that listen but were given neither a ``port`` nor
+        ``listen`` endpoints: :meth:`with_ports` gives them one each. A client listens on
+        nothing and needs none."""
+        return [
+            p
+            for p in (*self.nodes, *self.routers)
+            if not (p.port or p.listen) and getattr(p, "mode", "peer") != "client"
+        ]
+
     def with_ports(self, ports: list[int]) -> ClusterSpec:
-        """A copy where node i, then router j, listens on ``ports[i]``, ``ports[n + j]``
-        (one port per node, then per router)."""
-        n = len(self.nodes)
-        nodes = tuple(replace(x, port=p) for x, p in zip(self.nodes, ports[:n], strict=True))
-        routers = tuple(replace(r, port=p) for r, p in zip(self.routers, ports[n:], strict=True))
+        """A copy where the :meth:`unported` nodes, then routers, listen on ``ports`` in
+        order (one port each)."""
+        todo = self.unported()
+        if len(ports) != len(todo):
+            raise ValueError(f"{len(todo)} ports needed, {len(ports)} given")
+        given = {id(p): port for p, port in zip(todo, ports, strict=True)}
+        nodes = tuple(replace(x, port=given[id(x)]) if id(x) in given else x for x in self.nodes)
+        routers = tuple(
+            replace(r, port=given[id(r)]) if id(r) in given else r for r in self.routers
+        )
         return replace(self, nodes=nodes, routers=routers)
 
     def with_security(self, **values: Any) -> ClusterSpec:

@@ -373,11 +373,11 @@ class CampaignRun:
         if not self.attach:
             n = len(spec.nodes)
             pairs = n * (n - 1) if self.campaign.network else 0
-            need_nodes = not all(x.port for x in spec.nodes)
-            ports = free_ports(spec.host, (n if need_nodes else 0) + pairs)
-            if need_nodes:
-                spec = spec.with_ports(ports[:n])
-                ports = ports[n:]
+            unported = len(spec.unported())
+            ports = free_ports(spec.host, unported + pairs)
+            if unported:
+                spec = spec.with_ports(ports[:unported])
+                ports = ports[unported:]
             if "epoch" not in spec.world:
                 spec = spec.with_world(epoch=time.time())
             spec, self.fire_logs = with_fire_logs(spec, f / history.AUDIT)

@@ -155,3 +155,24 @@ def test_parsing_declared_arguments_twice_gives_the_same():
     once = Sonar.prepare_args({"max_range": 3})
     assert once["seed"] is None and once["crosstalk"] is True
     assert Sonar.prepare_args(once) == once
+
+
+def test_ports_go_to_the_listeners_that_have_none():
+    """A router with its port and client nodes (which listen on nothing) next to a peer
+    without one: only the peer gets a port (hera bench scale's router topology)."""
+    spec = parse_spec(
+        {
+            "cluster": {"name": "x"},
+            "routers": [{"name": "r", "port": 7000}, {"name": "r2"}],
+            "nodes": [
+                {"name": "a", "mode": "client", "connect": ["tcp/127.0.0.1:7000"]},
+                {"name": "b"},
+            ],
+        }
+    )
+    assert [p.name for p in spec.unported()] == ["b", "r2"]
+    ported = spec.with_ports([9001, 9002])
+    assert [(n.name, n.port) for n in ported.nodes] == [("a", 0), ("b", 9001)]
+    assert [(r.name, r.port) for r in ported.routers] == [("r", 7000), ("r2", 9002)]
+    with pytest.raises(ValueError, match="2 ports needed, 1 given"):
+        spec.with_ports([9001])
