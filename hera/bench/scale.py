@@ -29,6 +29,8 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+import zenoh
+
 from hera.client import ClusterClient
 from hera.launcher import node_command
 from hera.measure import Measure, MeasureContext
@@ -158,11 +160,13 @@ def cluster(spec: str) -> Iterator[tuple[ClusterClient, subprocess.Popen, Path]]
         client = None
         try:
             deadline = time.monotonic() + 60
-            while not (Path(tmp) / "run" / "cluster.json").exists():
+            while client is None:  # the launcher's routers may not listen yet
                 if time.monotonic() > deadline or proc.poll() is not None:
                     raise RuntimeError("the cluster did not start")
+                if (Path(tmp) / "run" / "launcher.json").exists():
+                    with contextlib.suppress(zenoh.ZError):
+                        client = ClusterClient.from_run_dir(Path(tmp) / "run")
                 time.sleep(0.1)
-            client = ClusterClient.from_run_dir(Path(tmp) / "run")
             yield client, proc, Path(tmp)
         finally:
             if client is not None:
