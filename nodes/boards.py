@@ -29,7 +29,7 @@ from __future__ import annotations
 import importlib
 import math
 import threading
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from hera.keys import Keys, check_chunk
@@ -185,6 +185,37 @@ def load_driver(args: Mapping[str, Any], protocol: type, what: str) -> Board | N
     if not isinstance(board, protocol):
         raise ValueError(f"driver {target!r} does not implement the {what} driver protocol")
     return board
+
+
+def open_board(
+    ctx: MeasureContext,
+    args: Mapping[str, Any],
+    default: str,
+    protocol: type,
+    what: str,
+    make: Callable[[str, int], Board],
+    kind: str | None = None,
+) -> Any:
+    """The board ``args["board"]`` (default ``default``) of ``ctx.node``, for board
+    families in their own packages: the one registered under that id (ValueError unless it
+    implements ``protocol``: "board ... is not ``what``"), else the real driver the args
+    name (:func:`load_driver`), else ``make(board_id, seed)``, a simulator seeded from the
+    node, the board name and the arg ``seed`` (default: the node's) under ``kind`` (default
+    ``default``). A new board is registered in the node's registry (faults, listing)."""
+    name = str(args.get("board") or default)
+    bid = board_id(ctx.node, name)
+    registry = of(ctx.resources)
+    with registry.lock:
+        b = registry.find(bid)
+        if b is not None:
+            if not isinstance(b, protocol):
+                raise ValueError(f"board {bid!r} is not {what}")
+            return b
+        board = load_driver(args, protocol, protocol.__name__)
+        if board is None:
+            seed = ctx.seed if args.get("seed") is None else args["seed"]
+            board = make(bid, stable_seed(kind or default, ctx.node, name, seed))
+        return registry.register(board, bid)
 
 
 def open_nav(ctx: MeasureContext, args: Mapping[str, Any]) -> NavDriver:

@@ -20,24 +20,7 @@ from hera.nodes.ir.plate import ThermocoupleModel
 from hera.nodes.ir.scenarios import PlateScene
 from hera.nodes.ir.sharp import SharpModel, variant
 from hera.nodes.ir.sim import SimSharpIr, SimThermocouple
-from hera.nodes.noise import stable_seed
 from hera.nodes.world import epoch_of, make_scenario
-
-
-def _open(ctx: MeasureContext, args: Mapping[str, Any], default: str, protocol: type, make):
-    name = str(args.get("board") or default)
-    bid = registry.board_id(ctx.node, name)
-    boards = registry.of(ctx.resources)
-    with boards.lock:
-        b = boards.find(bid)
-        if b is not None:
-            if not isinstance(b, protocol):
-                raise ValueError(f"board {bid!r} is not a {protocol.__name__}")
-            return b
-        seed = ctx.seed if args.get("seed") is None else int(args["seed"])
-        real = registry.load_driver(args, protocol, protocol.__name__)
-        board = real or make(bid, stable_seed(default, ctx.node, name, seed))
-        return boards.register(board, bid)
 
 
 def open_ir(ctx: MeasureContext, args: Mapping[str, Any]) -> IrDriver:
@@ -61,7 +44,7 @@ def open_ir(ctx: MeasureContext, args: Mapping[str, Any]) -> IrDriver:
             scanner=args.get("scanner"),
         )
 
-    return _open(ctx, args, "ir", IrDriver, make)
+    return registry.open_board(ctx, args, "ir", IrDriver, "an IrDriver", make)
 
 
 def thermocouple_position(ctx: MeasureContext, args: Mapping[str, Any]) -> tuple[float, float]:
@@ -98,4 +81,4 @@ def open_thermocouple(ctx: MeasureContext, args: Mapping[str, Any]) -> Thermocou
             thermocouple_position(ctx, args),
         )
 
-    return _open(ctx, args, "tc", ThermocoupleDriver, make)
+    return registry.open_board(ctx, args, "tc", ThermocoupleDriver, "a ThermocoupleDriver", make)

@@ -20,7 +20,6 @@ restarted measure or node keeps it and never recalibrates by itself. Counters:
 
 from __future__ import annotations
 
-import importlib
 import math
 import threading
 from collections.abc import Mapping
@@ -28,14 +27,13 @@ from typing import Any
 
 from hera.measure import Measure, MeasureContext, Reading
 from hera.nodes import boards
-from hera.nodes.boards import BOARD_ARGS, board_id
+from hera.nodes.boards import BOARD_ARGS
 from hera.nodes.calibration import calib_key, is_vec
 from hera.nodes.driver import NoReading
 from hera.nodes.lsm6dsl.calibration import GyroCalibration
 from hera.nodes.lsm6dsl.driver import ODRS_HZ, Lsm6dslDriver
 from hera.nodes.lsm6dsl.model import IMU_MODEL, ImuModel
 from hera.nodes.lsm6dsl.sim import SimLsm6dsl
-from hera.nodes.noise import stable_seed
 from hera.nodes.world import G, epoch_of, make_scenario
 from hera.resources import Resources
 from hera.schema import STR, Setting, Table, choice, number
@@ -111,36 +109,18 @@ class CalibrationDesk:
 def open_imu(ctx: MeasureContext, args: Mapping[str, Any]) -> Any:
     """The LSM6DSL ``args["board"]`` of ``ctx.node``: one registered under that id, else the
     driver the args name, else a simulator built from ``ctx.world`` and the arg ``model``."""
-    name = str(args.get("board") or "imu")
-    bid = board_id(ctx.node, name)
-    registry = boards.of(ctx.resources)
-    with registry.lock:
-        b = registry.find(bid)
-        if b is not None:
-            if not isinstance(b, Lsm6dslDriver):
-                raise ValueError(f"board {bid!r} is not an LSM6DSL driver")
-            return b
-        target = args.get("driver")
-        if target is not None:
-            module, _, attr = str(target).partition(":")
-            try:
-                cls = getattr(importlib.import_module(module), attr)
-            except (ImportError, AttributeError, ValueError) as e:
-                raise ValueError(f"driver {target!r} cannot be loaded: {e}") from None
-            board = cls(**dict(args.get("driver_args") or {}))
-            if not isinstance(board, Lsm6dslDriver):
-                raise ValueError(f"driver {target!r} does not implement the Lsm6dslDriver protocol")
-        else:
-            seed = args.get("seed")
-            board = SimLsm6dsl(
-                bid,
-                make_scenario(ctx.world),
-                epoch_of(ctx.world),
-                ImuModel.from_args(args.get("model")),
-                stable_seed("lsm6dsl", ctx.node, name, ctx.seed if seed is None else seed),
-                odr_hz=float(args.get("odr_hz", 26.0)),
-            )
-        return registry.register(board, bid)
+
+    def make(bid: str, seed: int) -> SimLsm6dsl:
+        return SimLsm6dsl(
+            bid,
+            make_scenario(ctx.world),
+            epoch_of(ctx.world),
+            ImuModel.from_args(args.get("model")),
+            seed,
+            odr_hz=float(args.get("odr_hz", 26.0)),
+        )
+
+    return boards.open_board(ctx, args, "imu", Lsm6dslDriver, "an LSM6DSL driver", make, "lsm6dsl")
 
 
 def stored_bias(value: Any) -> tuple[float, float, float] | None:

@@ -16,15 +16,13 @@ names a real :class:`~hera.nodes.tof.driver.TofDriver`, or one is registered on 
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Mapping
 from typing import Any
 
 from hera.measure import Measure, MeasureContext, Reading
 from hera.nodes import boards
-from hera.nodes.boards import BOARD_ARGS, board_id
+from hera.nodes.boards import BOARD_ARGS
 from hera.nodes.driver import NoReading, SimulatedBoard
-from hera.nodes.noise import stable_seed
 from hera.nodes.tof.driver import TofDriver
 from hera.nodes.tof.model import TOF_MODEL, TofModel
 from hera.nodes.tof.sim import SimVl53l1
@@ -52,36 +50,18 @@ def open_tof(ctx: MeasureContext, args: Mapping[str, Any], mount: tuple[float, f
     """The VL53L1 ``args["board"]`` of ``ctx.node``: one registered under that id, else the
     driver the args name, else a simulator built from ``ctx.world`` (see the module
     docstring). The board is registered in the node's board registry (faults, listing)."""
-    name = str(args.get("board") or "tof")
-    bid = board_id(ctx.node, name)
-    registry = boards.of(ctx.resources)
-    with registry.lock:
-        b = registry.find(bid)
-        if b is not None:
-            if not isinstance(b, TofDriver):
-                raise ValueError(f"board {bid!r} is not a VL53L1 driver")
-            return b
-        target = args.get("driver")
-        if target is not None:
-            module, _, attr = str(target).partition(":")
-            try:
-                cls = getattr(importlib.import_module(module), attr)
-            except (ImportError, AttributeError, ValueError) as e:
-                raise ValueError(f"driver {target!r} cannot be loaded: {e}") from None
-            board = cls(**dict(args.get("driver_args") or {}))
-            if not isinstance(board, TofDriver):
-                raise ValueError(f"driver {target!r} does not implement the TofDriver protocol")
-        else:
-            seed = args.get("seed")
-            board = SimVl53l1(
-                bid,
-                make_scenario(ctx.world),
-                epoch_of(ctx.world),
-                TofModel.from_args(args.get("model")),
-                mount,
-                stable_seed("vl53l1", ctx.node, name, ctx.seed if seed is None else seed),
-            )
-        return registry.register(board, bid)
+
+    def make(bid: str, seed: int) -> SimVl53l1:
+        return SimVl53l1(
+            bid,
+            make_scenario(ctx.world),
+            epoch_of(ctx.world),
+            TofModel.from_args(args.get("model")),
+            mount,
+            seed,
+        )
+
+    return boards.open_board(ctx, args, "tof", TofDriver, "a VL53L1 driver", make, "vl53l1")
 
 
 class Vl53l1(Measure):
