@@ -65,7 +65,12 @@ def _parser() -> argparse.ArgumentParser:
         sub, "up", "start every node of a spec and keep them running", HELP_EXAMPLES["up"]
     )
     up.add_argument("spec", help="cluster spec (TOML file, or an example's name: hera examples)")
-    up.add_argument("--duration", type=float, help="stop after this many seconds")
+    up.add_argument(
+        "--duration",
+        type=float,
+        help="stop after this many seconds of every node up (from the start if a node is "
+        "not up within 30 s)",
+    )
     up.add_argument(
         "--run-dir",
         help="where logs and recordings go (default: a new hera-run/<cluster>-<time>, "
@@ -669,7 +674,7 @@ def _eval(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from hera.application import EvalOptions
-    from hera.evaluate import evaluate, format_table, plot, sources, to_json
+    from hera.evaluate import evaluate, format_table, notes, plot, sources, to_json
     from hera.plugins import AppIndex
 
     options = EvalOptions(after=args.after, settle=args.settle)
@@ -680,6 +685,8 @@ def _eval(args: argparse.Namespace) -> int:
         results = evaluate(args.run_dir, options, index, args.reference, progress)
     if not results:
         raise ValueError(f"{args.run_dir}: no model outputs to score (no fusion model logged)")
+    for line in notes(results):
+        print(line, file=sys.stderr)
     if args.json:
         print(json.dumps(to_json(results), indent=1))
     else:

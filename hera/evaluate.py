@@ -44,6 +44,9 @@ class Scored:
     scores: dict[str, float | None] = field(default_factory=dict)
     source: str | None = None
     """What the scores compare with (the simulated world, a reference, self-consistency)."""
+    note: str | None = None
+    """Why the output has no scores although its application has metrics (too short a
+    series, or the application's scoring failed), in one sentence."""
 
 
 def run_spec(run_dir: str | Path) -> ClusterSpec:
@@ -148,18 +151,41 @@ def evaluate(
             progress(i, len(outputs))
         app = index.app_of(s.measure)
         scores: dict[str, float | None] = {}
-        source = None
+        source = note = None
         if app is not None:
             if app.name not in refs:
                 refs[app.name] = truth_of(app, spec, run_dir, reference)
             ref = refs[app.name]
-            scores = dict(app.score(s, ref.truth if ref else None, options))
             source = ref.source if ref else None
-        out.append(Scored(s, app, index.label(s.name, s.measure), scores, source))
+            scores, note = _score(app, s, ref, options)
+        out.append(Scored(s, app, index.label(s.name, s.measure), scores, source, note))
     if progress is not None:
         progress(len(outputs), len(outputs))
     out.sort(key=lambda r: (*index.rank(r.series.measure), r.series.name, r.series.node))
     return out
+
+
+def _score(
+    app: Application, series: Series, ref: Reference | None, options: EvalOptions
+) -> tuple[dict[str, float | None], str | None]:
+    """``app``'s scores of ``series``, or none and the reason: fewer than ``options.after``
+    seconds of estimates (scores count from then), or the application's error."""
+    span = float(series.t[-1] - series.t[0]) if len(series) else 0.0
+    what = f"{series.name} on {series.node}"
+    if span < options.after:
+        return {}, (
+            f"{what}: not scored: {len(series)} estimates over {span:.1f} s, and scores count "
+            f"from {options.after:g} s after the first (--after)"
+        )
+    try:
+        return dict(app.score(series, ref.truth if ref else None, options)), None
+    except Exception as e:  # one application's bug must not hide the other outputs' scores
+        return {}, f"{what}: not scored: application {app.name!r} failed: {e!r}"
+
+
+def notes(results: list[Scored]) -> list[str]:
+    """One line per output that has no scores, saying why."""
+    return [r.note for r in results if r.note]
 
 
 def sources(results: list[Scored]) -> list[str]:
@@ -215,6 +241,7 @@ def to_json(results: list[Scored]) -> list[dict[str, Any]]:
             "label": r.label,
             "estimates": len(r.series),
             "scored_against": r.source,
+            **({"note": r.note} if r.note else {}),
             **r.scores,
         }
         for r in results

@@ -15,7 +15,10 @@
 - Nodes run in their own sessions (Ctrl-C reaches only the launcher) and watch the
   launcher's pid, so they stop even if the launcher is SIGKILLed.
 - SIGINT, SIGTERM, ``hera down`` or the end of ``--duration`` stop everything: SIGTERM to
-  each node, SIGKILL after the shutdown timeout, exit 0, nothing left behind.
+  each node, SIGKILL after the shutdown timeout, exit 0, nothing left behind. ``--duration``
+  counts from when every node answers (all its measures registered), so a slow start (a
+  loaded machine, a first import) does not eat the run; a node not up within
+  :data:`UP_WAIT_S` does not hold the clock.
 - ``web``: serve the live web view (:mod:`hera.console`) on that loopback port while the
   cluster runs; ``mcap``: record every sample to that MCAP file (:mod:`hera.export.mcap`).
 """
@@ -56,6 +59,10 @@ from hera.statusview import render_view
 START_BURST = 5
 START_INTERVAL = 10.0
 RESTART_DELAY = 0.05
+UP_POLL_S = 0.25
+"""How often (and how long each time) the launcher asks its nodes whether they are up."""
+UP_WAIT_S = 30.0
+"""``--duration`` counts from when every node is up, or from this long after the start."""
 
 
 def busy_ports(spec: ClusterSpec, local: set[str] | None = None) -> list[str]:
@@ -407,13 +414,17 @@ class Launcher:
             )
             extras = self._start_extras()
             started = time.monotonic()
-            next_view = started + self.interval
+            counting: float | None = None  # when the --duration clock started
+            next_poll, next_view = started, started + self.interval
             while not self.stopping.is_set():
                 for np in self._procs():
                     self._check(np)
                 self._write_launcher_state()
                 now = time.monotonic()
-                if self.duration is not None and now - started >= self.duration:
+                if counting is None and now >= next_poll:
+                    next_poll = now + UP_POLL_S
+                    counting = self._all_up(client, now - started)
+                if None not in (counting, self.duration) and now - counting >= self.duration:
                     break
                 if now >= next_view:
                     next_view = now + self.interval
@@ -478,6 +489,26 @@ class Launcher:
             name = short(self.link) if self.link is not None else run
             text += f"; next: hera eval {name}"
         return text
+
+    def _all_up(self, client: ClusterClient, waited: float) -> float | None:
+        """When every node of this launcher answers a status query (so every measure is
+        registered), or :data:`UP_WAIT_S` has passed: the monotonic time the run's
+        ``--duration`` counts from, said on the terminal; None while still waiting."""
+        local = set(self.nodes)
+        if local:
+            try:
+                answered = set(client.status(timeout=UP_POLL_S)) & local
+            except Exception:  # a query that fails now is asked again at the next poll
+                answered = set()
+            if answered != local and waited < UP_WAIT_S:
+                return None
+            if answered != local:
+                missing = ", ".join(sorted(local - answered))
+                self._say(f"{missing} not up after {UP_WAIT_S:.0f} s; the run counts from now")
+            else:
+                runs = "" if self.duration is None else f"; running {self.duration:g} s"
+                self._say(f"all {len(local)} nodes up in {waited:.1f} s{runs}")
+        return time.monotonic()
 
     def _show(self, client: ClusterClient, uptime: float) -> None:
         try:

@@ -9,6 +9,7 @@ import sys
 
 import msgpack
 import pytest
+import zenoh
 from harness import cluster_env, wait_for
 
 from hera.bus import open_session
@@ -244,19 +245,27 @@ def test_bad_payloads_are_rejected_counted_and_harmless(cluster, tmp_path):
     nodes = [n.name for n in c.client.spec.nodes]
     with open_session(c.operator_bus(connect=tuple(c.client.spec.endpoint(n) for n in nodes))) as s:
         c.reached(s, nodes)
+        # Zenoh's default for a put is to drop it when the link's queue is full (a burst on
+        # a loaded machine): these must all arrive
+        block = zenoh.CongestionControl.BLOCK
         for payload in BAD_PAYLOADS.values():
-            s.put("hera/bad/data/evil/x", payload)
-        s.put("hera/bad/data/evil", encode(1, 1.0, [1.0]))  # a key without a node
+            s.put("hera/bad/data/evil/x", payload, congestion_control=block)
+        s.put("hera/bad/data/evil", encode(1, 1.0, [1.0]), congestion_control=block)  # no node
         # a well-formed sample still goes through afterwards
-        s.put("hera/bad/data/good/n1", encode(1, 1.0, [42.0]))
+        s.put("hera/bad/data/good/n1", encode(1, 1.0, [42.0]), congestion_control=block)
+        counted: dict[str, dict[str, int]] = {}
 
         def all_counted():
-            return all(
-                sum(st["rejected"].values()) == len(BAD_PAYLOADS) + 1
-                for st in c.client.status(0.5).values()
+            counted.clear()
+            counted.update({n: st["rejected"] for n, st in c.client.status(1.0).items()})
+            return len(counted) == 5 and all(
+                sum(r.values()) == len(BAD_PAYLOADS) + 1 for r in counted.values()
             )
 
-        wait_for(all_counted, 10, "every node to count every bad payload")
+        try:
+            wait_for(all_counted, 10, "every node to count every bad payload")
+        except AssertionError as e:
+            raise AssertionError(f"{e}; rejected by node: {counted}") from None
     for node, st in c.client.status(0.5).items():
         assert st["pid"] == pids[node]
         assert st["rejected"]["oversized"] == 1
@@ -282,6 +291,11 @@ def test_up_with_duration_exits_zero_and_leaves_nothing(cluster, tmp_path):
         "5 node pids",
     )
     assert c.proc.wait(30) == 0
+    # the run's 4 s count from when every node answered, not from the spawn
+    said = c.log.read_text()
+    up = said.index("all 5 nodes up in ")
+    assert said[up:].splitlines()[0].endswith(" s; running 4 s"), said
+    assert said.index("stopping") > up
     for pid in pids:
         with pytest.raises(ProcessLookupError):
             os.kill(pid, 0)
