@@ -83,8 +83,14 @@ class Cluster:
 
         wait_for(self._mine, timeout, "this launcher's launcher.json")
         self.client = ClusterClient.from_run_dir(self.run_dir)
-        n = len(self.client.spec.nodes)
-        wait_for(lambda: len(self.client.status(0.5)) == n, timeout, f"{n} nodes answering")
+        names = {node.name for node in self.client.spec.nodes}
+        answered: set[str] = set()
+
+        def all_answered() -> bool:  # node by node: one query seldom gets all on a busy machine
+            answered.update(self.client.status(0.5))
+            return answered >= names
+
+        wait_for(all_answered, timeout, f"{len(names)} nodes answering")
 
     def _mine(self) -> bool:
         """Whether launcher.json is this launcher's (a previous run may have left one)."""
