@@ -167,7 +167,9 @@ def test_the_page_shows_nodes_plots_truth_and_the_track(train, browser):
     page.wait_for_function(
         "document.querySelectorAll('#nodes tr[data-state=\"up\"]').length === 4", timeout=10000
     )
-    # the default choice: the models of one node, each plot receiving points over time
+    # the default choice: the models of one node once they publish (until then the first
+    # streams), each plot receiving points over time
+    page.wait_for_function("window.hera.selected.includes('track_gyro/computer')", timeout=15000)
     chosen = page.evaluate("window.hera.selected")
     assert chosen and all(s.endswith("/computer") for s in chosen), chosen
     assert "track_gyro/computer" in chosen
