@@ -36,7 +36,7 @@ from typing import Any
 import zenoh
 
 from hera.args import ArgsStore
-from hera.bus import open_session, with_overrides
+from hera.bus import BusConfig, open_session, with_overrides
 from hera.control import EXIT_INJECTED_CRASH, ControlPlane
 from hera.csvlog import CsvLog
 from hera.datapath import DataPath
@@ -133,14 +133,10 @@ class Node:
         """Join the bus, recover state from peers and start the services and measures."""
         self._select_estimation_backend()
         try:
-            bus = secured(self.spec, self.name, bus_config(self.spec, self.name))
-        except CredentialsError as e:
+            bus = node_bus(self.spec, self.name)
+        except (CredentialsError, ValueError) as e:
             raise FatalStart(str(e)) from None
         me = ", ".join(bus.listen) or "no endpoint (a client)"
-        try:
-            bus = with_overrides(bus, self.name)
-        except ValueError as e:
-            raise FatalStart(str(e)) from None
         try:
             self.session = s = open_session(bus)
         except zenoh.ZError as e:
@@ -343,6 +339,14 @@ class Node:
     def _escalate(self, reason: str) -> None:
         log.error("node %s escalates: %s", self.name, reason)
         self.stop(EXIT_ESCALATED)
+
+
+def node_bus(spec: ClusterSpec, name: str, environ: Mapping[str, str] = os.environ) -> BusConfig:
+    """How node ``name`` joins the bus: its endpoints (:func:`hera.topology.bus_config`), the
+    overrides of ``$HERA_BUS_OVERRIDES`` (a campaign's link proxy replaces its connects),
+    then its credentials, which make every endpoint a TLS one when the cluster runs TLS.
+    CredentialsError or ValueError (the overrides file) naming the cause."""
+    return secured(spec, name, with_overrides(bus_config(spec, name), name, environ))
 
 
 def run_node(

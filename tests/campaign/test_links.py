@@ -24,6 +24,10 @@ from hera.campaign.links import (
     write_plan,
 )
 from hera.launcher import free_ports
+from hera.node import node_bus
+from hera.security.access import OPERATOR
+from hera.security.certs import make_certs
+from hera.security.credentials import secured
 from hera.spec import parse_spec
 
 
@@ -224,11 +228,19 @@ def test_the_proxy_stops_when_its_parent_is_gone(tmp_path):
 # -- with Zenoh ----------------------------------------------------------------------------
 
 
-def test_a_partition_of_zenoh_peers_cuts_only_the_chosen_pairs(tmp_path):
-    """Three peers behind the proxy, with the overrides a node applies; an observer joined
-    directly to all three. Cut a from b and c: a hears nobody, b and c hear each other, the
-    observer hears all three; healed, a hears the others again."""
+@pytest.mark.parametrize("tls", [False, True], ids=["tcp", "tls"])
+def test_a_partition_of_zenoh_peers_cuts_only_the_chosen_pairs(tmp_path, tls):
+    """Three peers behind the proxy, with the overrides a node applies and then its
+    credentials (as a node does: with TLS, mutual TLS and access control pass through the
+    proxy, which carries bytes); an observer joined directly to all three. Cut a from b
+    and c: a hears nobody, b and c hear each other, the observer hears all three; healed,
+    a hears the others again."""
     spec = _spec(["a", "b", "c"])
+    auth = spec.with_security(auth=False)
+    if tls:
+        certs = tmp_path / "certs"
+        make_certs(certs, spec.name, {n: [] for n in ("a", "b", "c", OPERATOR)})
+        auth = spec.with_security(tls=True, certs=str(certs))
     plan_path = write_plan(plan_links(spec, free_ports("127.0.0.1", 6)), tmp_path)
     env = node_env(plan_path, {})
     assert env[OVERRIDES_ENV] == str(plan_path)
@@ -240,16 +252,17 @@ def test_a_partition_of_zenoh_peers_cuts_only_the_chosen_pairs(tmp_path):
     stop = threading.Event()
     try:
         for n in spec.nodes:
-            others = tuple(spec.endpoint(m.name) for m in spec.nodes if m.name != n.name)
-            cfg = with_overrides(
-                BusConfig(listen=(spec.endpoint(n.name),), connect=others, lease_ms=1000),
-                n.name,
-                env,
-            )
-            assert cfg.connect != others and cfg.extra["scouting/gossip/enabled"] is False
+            others = {m.port for m in spec.nodes if m.name != n.name}
+            cfg = node_bus(auth, n.name, env)  # what the node process opens
+            assert cfg.extra["scouting/gossip/enabled"] is False
+            assert len(cfg.connect) == 2 and not others & {
+                int(e.rsplit(":")[-1]) for e in cfg.connect
+            }
+            assert all(e.startswith("tls/" if tls else "tcp/") for e in cfg.connect)
             sessions[n.name] = open_session(cfg)
+        everyone = tuple(spec.endpoint(n.name) for n in spec.nodes)
         sessions["observer"] = open_session(
-            BusConfig(connect=tuple(spec.endpoint(n.name) for n in spec.nodes), lease_ms=1000)
+            secured(auth, OPERATOR, BusConfig(connect=everyone, lease_ms=1000))
         )
         subs = []
         for who, s in sessions.items():
@@ -260,12 +273,12 @@ def test_a_partition_of_zenoh_peers_cuts_only_the_chosen_pairs(tmp_path):
                 with lock:
                     heard[who][src] = heard[who].get(src, 0) + 1
 
-            subs.append(s.declare_subscriber("t/*", on))
+            subs.append(s.declare_subscriber("hera/links/data/t/*", on))
 
         def publish() -> None:
             while not stop.is_set():
                 for n in ("a", "b", "c"):
-                    sessions[n].put(f"t/{n}", b"x")
+                    sessions[n].put(f"hera/links/data/t/{n}", b"x")  # its own key
                 time.sleep(0.01)
 
         threading.Thread(target=publish, daemon=True).start()
