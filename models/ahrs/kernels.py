@@ -1,15 +1,25 @@
 """The arithmetic of the multiplicative (error-state) EKF of :mod:`.mekf`, on numpy.
 
-The filter keeps a unit quaternion ``q`` (body -> reference, scalar first), the gyroscope
-bias ``b`` (rad/s) and the 6x6 covariance ``P`` of the error state ``dx = [dtheta, db]``:
-``dtheta`` a small rotation in the **body** frame, ``q_true = q * Exp(dtheta)`` (Markley
-2003, "Attitude error representations for Kalman filtering"; Sola 2017, "Quaternion
-kinematics for the error-state Kalman filter", sections 5 and 7). Every function updates
-``q``, ``b`` and ``P`` in place and writes what the caller needs to decide into ``out``.
+The filter keeps a unit quaternion ``q`` (body -> reference, scalar first), the gyroscope's
+calibration ``g`` (6 numbers: its bias ``b = g[0:3]``, rad/s, and its scale errors ``k =
+g[3:6]``, relative) and the covariance ``P`` of the error state ``dx = [dtheta, db]`` (6
+states: the scale errors are not estimated and stay as they are, 0) or ``[dtheta, db, dk]``
+(9 states; the size of ``P`` tells): ``dtheta`` a small rotation in the **body** frame,
+``q_true = q * Exp(dtheta)`` (Markley 2003, "Attitude error representations for Kalman
+filtering"; Sola 2017, "Quaternion kinematics for the error-state Kalman filter", sections 5
+and 7). Every function updates ``q``, ``g`` and ``P`` in place and writes what the caller
+needs to decide into ``out``.
 
-- :func:`predict` (Sola eq. 269-270): ``w = w_m - b``, ``q <- q * Exp(w dt)``,
-  ``P <- Phi P Phi^T + Q`` with ``Phi = [[Exp(w dt)^T, -I dt], [0, I]]`` and
-  ``Q = diag(q_att, q_bias I)`` (``q_att`` one variance per gyroscope axis);
+- :func:`predict` (Sola eq. 269-270, with a scale factor in the gyroscope's model: Markley &
+  Crassidis 2014, "Fundamentals of Spacecraft Attitude Determination and Control", ch. 4
+  and 6 (sensor model, calibration states), per axis ``w_m = (1 + k) w + b + n``):
+  ``w = (w_m - b) / (1 + k)``, ``q <- q * Exp(w dt)``, ``P <- Phi P Phi^T + Q`` with
+  ``Phi = [[Exp(w dt)^T, -D dt, -D W dt], [0, I, 0], [0, 0, I]]`` (``D = diag(1 / (1 +
+  k))``, ``W = diag(w)``: the derivatives of ``w`` with respect to ``b`` and ``k``; the
+  last block row and column only with 9 states) and ``Q = diag(q_att, q_bias I, q_scale
+  I)`` (``q_att`` one variance per gyroscope axis). A scale error is thus seen only while
+  the body turns about that axis, as the heading or tilt it accumulates, which the
+  magnetometer and accelerometer then observe;
 - :func:`vector_update`: a reference vector seen in the body, ``z = s R(q)^T r + v``
   (``s`` its length, e.g. g for the accelerometer): ``H = [s [v x], 0]`` with ``v =
   R^T r``; its noise ``r_var I + R^T C R``, where ``C`` is the covariance of ``R z`` in
@@ -34,15 +44,17 @@ kinematics for the error-state Kalman filter", sections 5 and 7). Every function
   leaks into the measured heading through the dip angle, and is so accounted for in S;
   the gain is then projected onto the heading axis (the tilt and the x/y bias states are
   "considered", Schmidt 1966: their uncertainty is counted, they are not corrected; the
-  Joseph form keeps P consistent with that gain). Noise ``(r_rel |m| / |m_h|)^2`` rad^2 (a
+  Joseph form keeps P consistent with that gain). The scale errors keep their gain: what
+  the heading tells of them comes only through their correlation with it, built while the
+  body turns. Noise ``(r_rel |m| / |m_h|)^2`` rad^2 (a
   relative field noise seen on the horizontal part). The field's norm and dip angle are
   checked against a window first, and the heading innovation against a step window: a
   field whose heading jumps while the gyroscope saw no turn is a disturbance, whatever
   the filter's own (possibly wide) heading variance would let through.
 
 Updates use the Joseph form ``P = (I - K H) P (I - K H)^T + K R K^T``, then the error is
-injected, ``q <- q * Exp(dtheta)``, ``b <- b + db``, and ``q`` is normalised (the reset's
-covariance Jacobian, ``I - [dtheta/2 x]``, is taken as I: dtheta is small).
+injected, ``q <- q * Exp(dtheta)``, ``b <- b + db``, ``k <- k + dk``, and ``q`` is
+normalised (the reset's covariance Jacobian, ``I - [dtheta/2 x]``, is taken as I: dtheta is small).
 
 :mod:`.kernels_numba` holds the same functions as compiled loops; a test holds the two to
 the same numbers.
@@ -114,21 +126,21 @@ def skew(v: np.ndarray) -> np.ndarray:
     return np.array(((0.0, -v[2], v[1]), (v[2], 0.0, -v[0]), (-v[1], v[0], 0.0)))
 
 
-def _inject(q: np.ndarray, b: np.ndarray, dx: np.ndarray) -> None:
+def _inject(q: np.ndarray, g: np.ndarray, dx: np.ndarray) -> None:
     qn = quat_mul(q, rotvec_quat(dx[:3]))
     q[:] = qn / math.sqrt(float(qn @ qn))
-    b += dx[3:]
+    g[: dx.size - 3] += dx[3:]
 
 
 def _joseph(P: np.ndarray, K: np.ndarray, H: np.ndarray, r_var: float) -> None:
-    A = np.eye(6) - K @ H
+    A = np.eye(P.shape[0]) - K @ H
     Pn = A @ P @ A.T + r_var * (K @ K.T)
     P[:] = 0.5 * (Pn + Pn.T)
 
 
 def predict(
     q: np.ndarray,
-    b: np.ndarray,
+    g: np.ndarray,
     P: np.ndarray,
     wx: float,
     wy: float,
@@ -136,26 +148,33 @@ def predict(
     dt: float,
     q_att: np.ndarray,
     q_bias: float,
+    q_scale: float,
 ) -> None:
     """Propagate by ``dt`` s with the measured body rate ``(wx, wy, wz)`` (rad/s); ``q_att``
-    (rad^2, one per axis) and ``q_bias`` ((rad/s)^2) are the process noise added over
-    ``dt``."""
-    w = np.array((wx - b[0], wy - b[1], wz - b[2]))
+    (rad^2, one per axis), ``q_bias`` ((rad/s)^2) and ``q_scale`` (1, unused with 6 states)
+    are the process noise added over ``dt``."""
+    n = P.shape[0]
+    d = 1.0 / (1.0 + g[3:6])
+    w = np.array((wx - g[0], wy - g[1], wz - g[2])) * d
     dq = rotvec_quat(w * dt)
     qn = quat_mul(q, dq)
     q[:] = qn / math.sqrt(float(qn @ qn))
-    Phi = np.eye(6)
+    Phi = np.eye(n)
     Phi[:3, :3] = quat_matrix(dq).T
-    Phi[:3, 3:] = -dt * np.eye(3)
+    Phi[:3, 3:6] = np.diag(-dt * d)
+    if n > 6:
+        Phi[:3, 6:9] = np.diag(-dt * d * w)
     Pn = Phi @ P @ Phi.T
     Pn[:3, :3] += np.diag(q_att)
-    Pn[3:, 3:] += q_bias * np.eye(3)
+    Pn[3:6, 3:6] += q_bias * np.eye(3)
+    if n > 6:
+        Pn[6:9, 6:9] += q_scale * np.eye(3)
     P[:] = 0.5 * (Pn + Pn.T)
 
 
 def _vector_core(
     q: np.ndarray,
-    b: np.ndarray,
+    g: np.ndarray,
     P: np.ndarray,
     z: np.ndarray,
     v: np.ndarray,
@@ -167,7 +186,8 @@ def _vector_core(
     """Fuse ``z`` seen as ``s v`` (``v`` a unit vector in the body frame, ``R(q)^T`` of the
     reference one) with noise covariance ``Rn``: NIS into ``out[0]``, status ``out[1]``."""
     nu = z - s * v
-    H = np.zeros((3, 6))
+    n = P.shape[0]
+    H = np.zeros((3, n))
     H[:, :3] = s * skew(v)
     S = H @ P @ H.T + Rn
     try:
@@ -182,16 +202,16 @@ def _vector_core(
         return
     K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (S and P symmetric)
     dx = K @ nu
-    A = np.eye(6) - K @ H
+    A = np.eye(n) - K @ H
     Pn = A @ P @ A.T + K @ Rn @ K.T
     P[:] = 0.5 * (Pn + Pn.T)
-    _inject(q, b, dx)
+    _inject(q, g, dx)
     out[1] = ACCEPTED
 
 
 def vector_update(
     q: np.ndarray,
-    b: np.ndarray,
+    g: np.ndarray,
     P: np.ndarray,
     zx: float,
     zy: float,
@@ -229,12 +249,12 @@ def vector_update(
     Rn = r_var * np.eye(3) + Cb
     out[2] = float(np.sum((z - s * v) ** 2))
     out[3] = float(np.trace(Cb))
-    _vector_core(q, b, P, z, v, s, Rn, gate, out)
+    _vector_core(q, g, P, z, v, s, Rn, gate, out)
 
 
 def mag_update(
     q: np.ndarray,
-    b: np.ndarray,
+    g: np.ndarray,
     P: np.ndarray,
     mx: float,
     my: float,
@@ -277,10 +297,10 @@ def mag_update(
         return
     if par[11] > 0.0 and par[7] > 0.0:  # the direction as a unit vector
         mref = math.cos(par[9]) * north - math.sin(par[9]) * up
-        _vector_core(q, b, P, m / norm, R.T @ mref, 1.0, r_rel * r_rel * np.eye(3), gate, out)
+        _vector_core(q, g, P, m / norm, R.T @ mref, 1.0, r_rel * r_rel * np.eye(3), gate, out)
         return
     r_var = (r_rel * norm / h) ** 2
-    H = np.zeros((1, 6))
+    H = np.zeros((1, P.shape[0]))
     H[0, :3] = -(ub + (-mu / h) * (R.T @ north))
     S = float((H @ P @ H.T)[0, 0]) + r_var
     if not S > 0.0:
@@ -293,8 +313,8 @@ def mag_update(
     K = (P @ H.T) / S
     Pu = np.outer(ub, ub)
     K[:3] = Pu @ K[:3]
-    K[3:] = Pu @ K[3:]
+    K[3:6] = Pu @ K[3:6]  # (the scale errors' gain is kept: only turns inform them)
     dx = K[:, 0] * alpha
     _joseph(P, K, H, r_var)
-    _inject(q, b, dx)
+    _inject(q, g, dx)
     out[1] = ACCEPTED

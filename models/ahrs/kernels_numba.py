@@ -54,65 +54,57 @@ def _qmul(w1, x1, y1, z1, w2, x2, y2, z2):
 
 
 @_jit
-def _inject(q, b, dx):
+def _inject(q, g, dx):
     dw, dx1, dy1, dz1 = _rotvec(dx[0], dx[1], dx[2])
     w, x, y, z = _qmul(q[0], q[1], q[2], q[3], dw, dx1, dy1, dz1)
     n = math.sqrt(w * w + x * x + y * y + z * z)
     q[0], q[1], q[2], q[3] = w / n, x / n, y / n, z / n
-    b[0] += dx[3]
-    b[1] += dx[4]
-    b[2] += dx[5]
+    for i in range(dx.shape[0] - 3):
+        g[i] += dx[3 + i]
 
 
 @_jit
-def _joseph(P, K, H, Rn, m):
-    """P <- (I - K H) P (I - K H)^T + K Rn K^T for K (6, m), H (m, 6), Rn (m, m)."""
-    A = np.empty((6, 6))
-    for i in range(6):
-        for j in range(6):
-            s = 1.0 if i == j else 0.0
-            for k in range(m):
-                s -= K[i, k] * H[k, j]
-            A[i, j] = s
-    AP = np.empty((6, 6))
-    for i in range(6):
-        for j in range(6):
+def _joseph(P, K, HP, S, m):
+    """The Joseph form for an H whose columns past the third are zero, expanded:
+    ``(I - K H) P (I - K H)^T + K R K^T = P - K HP - (K HP)^T + K S K^T`` with ``HP = H P``
+    (m, n) and ``S = H P H^T + R`` (m, m), for any gain K (n, m): O(m n^2)."""
+    n = P.shape[0]
+    KHP = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
             s = 0.0
-            for k in range(6):
-                s += A[i, k] * P[k, j]
-            AP[i, j] = s
-    KR = np.empty((6, m))
-    for i in range(6):
+            for k in range(m):
+                s += K[i, k] * HP[k, j]
+            KHP[i, j] = s
+    KS = np.empty((n, m))
+    for i in range(n):
         for j in range(m):
             s = 0.0
             for k in range(m):
-                s += K[i, k] * Rn[k, j]
-            KR[i, j] = s
-    out = np.empty((6, 6))
-    for i in range(6):
-        for j in range(6):
+                s += K[i, k] * S[k, j]
+            KS[i, j] = s
+    for i in range(n):
+        for j in range(i, n):
             s = 0.0
-            for k in range(6):
-                s += AP[i, k] * A[j, k]
             for k in range(m):
-                s += KR[i, k] * K[j, k]
-            out[i, j] = s
-    for i in range(6):
-        for j in range(6):
-            P[i, j] = 0.5 * (out[i, j] + out[j, i])
+                s += KS[i, k] * K[j, k]
+            v = P[i, j] - KHP[i, j] - KHP[j, i] + s
+            w = P[j, i] - KHP[j, i] - KHP[i, j] + s
+            P[i, j] = P[j, i] = 0.5 * (v + w)
 
 
 @_jit
-def _vector_core(q, b, P, z, v, s, Rn, gate, out):
+def _vector_core(q, g, P, z, v, s, Rn, gate, out):
+    n = P.shape[0]
     nu = np.empty(3)
     for i in range(3):
         nu[i] = z[i] - s * v[i]
-    H = np.zeros((3, 6))
+    H = np.zeros((3, 3))  # its first three columns, the others are zero
     H[0, 1], H[0, 2] = -s * v[2], s * v[1]
     H[1, 0], H[1, 2] = s * v[2], -s * v[0]
     H[2, 0], H[2, 1] = -s * v[1], s * v[0]
-    PHt = np.empty((6, 3))
-    for i in range(6):
+    PHt = np.empty((n, 3))
+    for i in range(n):
         for j in range(3):
             acc = 0.0
             for k in range(3):
@@ -169,62 +161,74 @@ def _vector_core(q, b, P, z, v, s, Rn, gate, out):
             for k in range(3):
                 acc += Li[k, i] * Li[k, j]
             Si[i, j] = acc
-    K = np.empty((6, 3))
-    for i in range(6):
+    K = np.empty((n, 3))
+    for i in range(n):
         for j in range(3):
             acc = 0.0
             for k in range(3):
                 acc += PHt[i, k] * Si[k, j]
             K[i, j] = acc
-    dx = np.empty(6)
-    for i in range(6):
+    dx = np.empty(n)
+    for i in range(n):
         dx[i] = K[i, 0] * nu[0] + K[i, 1] * nu[1] + K[i, 2] * nu[2]
-    _joseph(P, K, H, Rn, 3)
-    _inject(q, b, dx)
+    HP = np.empty((3, n))
+    for i in range(3):
+        for j in range(n):
+            HP[i, j] = PHt[j, i]
+    _joseph(P, K, HP, S, 3)
+    _inject(q, g, dx)
     out[1] = ACCEPTED
 
 
 @_jit
-def predict(q, b, P, wx, wy, wz, dt, q_att, q_bias):
-    wx -= b[0]
-    wy -= b[1]
-    wz -= b[2]
+def predict(q, g, P, wx, wy, wz, dt, q_att, q_bias, q_scale):
+    n = P.shape[0]
+    d0, d1, d2 = 1.0 / (1.0 + g[3]), 1.0 / (1.0 + g[4]), 1.0 / (1.0 + g[5])
+    wx = (wx - g[0]) * d0
+    wy = (wy - g[1]) * d1
+    wz = (wz - g[2]) * d2
     dw, dx, dy, dz = _rotvec(wx * dt, wy * dt, wz * dt)
     w, x, y, z = _qmul(q[0], q[1], q[2], q[3], dw, dx, dy, dz)
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    q[0], q[1], q[2], q[3] = w / n, x / n, y / n, z / n
+    nq = math.sqrt(w * w + x * x + y * y + z * z)
+    q[0], q[1], q[2], q[3] = w / nq, x / nq, y / nq, z / nq
     Rd = np.empty((3, 3))
     _qmat(dw, dx, dy, dz, Rd)
-    Phi = np.zeros((6, 6))
+    # Phi = [[A, B, C], [0, I, 0], [0, 0, I]], A = Rd^T, B = diag(beta), C = diag(gamma):
+    # only the attitude rows of Phi P differ from P's (T), and P's other blocks stay
+    beta = np.empty(3)
+    gamma = np.empty(3)
+    beta[0], beta[1], beta[2] = -dt * d0, -dt * d1, -dt * d2
+    gamma[0], gamma[1], gamma[2] = beta[0] * wx, beta[1] * wy, beta[2] * wz
+    T = np.empty((3, n))
+    for i in range(3):
+        for j in range(n):
+            s = Rd[0, i] * P[0, j] + Rd[1, i] * P[1, j] + Rd[2, i] * P[2, j]
+            s += beta[i] * P[3 + i, j]
+            if n > 6:
+                s += gamma[i] * P[6 + i, j]
+            T[i, j] = s
+    A = np.empty((3, 3))
     for i in range(3):
         for j in range(3):
-            Phi[i, j] = Rd[j, i]
-        Phi[i, 3 + i] = -dt
-        Phi[3 + i, 3 + i] = 1.0
-    FP = np.empty((6, 6))
-    for i in range(6):
-        for j in range(6):
-            s = 0.0
-            for k in range(6):
-                s += Phi[i, k] * P[k, j]
-            FP[i, j] = s
-    out = np.empty((6, 6))
-    for i in range(6):
-        for j in range(6):
-            s = 0.0
-            for k in range(6):
-                s += FP[i, k] * Phi[j, k]
-            out[i, j] = s
+            s = Rd[0, j] * T[i, 0] + Rd[1, j] * T[i, 1] + Rd[2, j] * T[i, 2]
+            s += beta[j] * T[i, 3 + j]
+            if n > 6:
+                s += gamma[j] * T[i, 6 + j]
+            A[i, j] = s
     for i in range(3):
-        out[i, i] += q_att[i]
-        out[3 + i, 3 + i] += q_bias
-    for i in range(6):
-        for j in range(6):
-            P[i, j] = 0.5 * (out[i, j] + out[j, i])
+        for j in range(3):
+            P[i, j] = 0.5 * (A[i, j] + A[j, i])
+        P[i, i] += q_att[i]
+        for j in range(3, n):
+            P[i, j] = P[j, i] = T[i, j]
+    for i in range(3, 6):
+        P[i, i] += q_bias
+    for i in range(6, n):
+        P[i, i] += q_scale
 
 
 @_jit
-def vector_update(q, b, P, zx, zy, zz, par, stats, alpha, gate, out):
+def vector_update(q, g, P, zx, zy, zz, par, stats, alpha, gate, out):
     s = par[3]
     r_var = par[4]
     R = np.empty((3, 3))
@@ -287,11 +291,12 @@ def vector_update(q, b, P, zx, zy, zz, par, stats, alpha, gate, out):
         nu2 += e * e
     out[2] = nu2
     out[3] = tr
-    _vector_core(q, b, P, z, v, s, Rn, gate, out)
+    _vector_core(q, g, P, z, v, s, Rn, gate, out)
 
 
 @_jit
-def mag_update(q, b, P, mx, my, mz, par, gate, out):
+def mag_update(q, g, P, mx, my, mz, par, gate, out):
+    n = P.shape[0]
     ux, uy, uz = par[0], par[1], par[2]
     nx, ny, nz = par[3], par[4], par[5]
     r_rel = par[6]
@@ -350,22 +355,22 @@ def mag_update(q, b, P, mx, my, mz, par, gate, out):
         Rn = np.zeros((3, 3))
         for i in range(3):
             Rn[i, i] = r_rel * r_rel
-        _vector_core(q, b, P, z, v, 1.0, Rn, gate, out)
+        _vector_core(q, g, P, z, v, 1.0, Rn, gate, out)
         return
     r_var = (r_rel * norm / h) ** 2
     t = -mu / h
-    H = np.zeros((1, 6))
+    H = np.empty(3)  # its first three columns, the others are zero
     for i in range(3):
-        H[0, i] = -(ub[i] + t * (R[0, i] * nx + R[1, i] * ny + R[2, i] * nz))
-    PHt = np.empty(6)
-    for i in range(6):
+        H[i] = -(ub[i] + t * (R[0, i] * nx + R[1, i] * ny + R[2, i] * nz))
+    PHt = np.empty(n)
+    for i in range(n):
         acc = 0.0
         for k in range(3):
-            acc += P[i, k] * H[0, k]
+            acc += P[i, k] * H[k]
         PHt[i] = acc
     S = r_var
     for k in range(3):
-        S += H[0, k] * PHt[k]
+        S += H[k] * PHt[k]
     if not S > 0.0:
         out[0] = math.inf
         out[1] = UNUSABLE
@@ -375,19 +380,24 @@ def mag_update(q, b, P, mx, my, mz, par, gate, out):
     if not nis <= gate:
         out[1] = REJECTED
         return
-    K = np.empty((6, 1))
+    K = np.empty((n, 1))
     pa = (ub[0] * PHt[0] + ub[1] * PHt[1] + ub[2] * PHt[2]) / S
     pb = (ub[0] * PHt[3] + ub[1] * PHt[4] + ub[2] * PHt[5]) / S
     for i in range(3):
         K[i, 0] = ub[i] * pa
         K[3 + i, 0] = ub[i] * pb
-    dx = np.empty(6)
-    for i in range(6):
+    for i in range(6, n):  # the scale errors keep their gain
+        K[i, 0] = PHt[i] / S
+    dx = np.empty(n)
+    for i in range(n):
         dx[i] = K[i, 0] * alpha
-    Rn = np.empty((1, 1))
-    Rn[0, 0] = r_var
-    _joseph(P, K, H, Rn, 1)
-    _inject(q, b, dx)
+    HP = np.empty((1, n))
+    for j in range(n):
+        HP[0, j] = PHt[j]
+    Sm = np.empty((1, 1))
+    Sm[0, 0] = S
+    _joseph(P, K, HP, Sm, 1)
+    _inject(q, g, dx)
     out[1] = ACCEPTED
 
 
@@ -400,13 +410,13 @@ def compiled() -> SimpleNamespace:
     a hang."""
     global _COMPILED
     if _COMPILED is None:
-        q, b, P = np.array((1.0, 0.0, 0.0, 0.0)), np.zeros(3), np.eye(6) * 1e-4
+        q, g, P = np.array((1.0, 0.0, 0.0, 0.0)), np.zeros(6), np.eye(9) * 1e-4
         par, stats, out = np.zeros(14), np.zeros(17), np.zeros(5)
         par[0:3] = (0.0, 0.0, 1.0)
         par[13] = np.inf
-        predict(q, b, P, 0.0, 0.0, 0.0, 0.01, np.zeros(3), 0.0)
-        vector_update(q, b, P, 0.0, 0.0, 9.8, par, stats, 0.1, 1.0, out)
-        mag_update(q, b, P, 0.0, 0.2, -0.4, par, 1.0, out)
+        predict(q, g, P, 0.0, 0.0, 0.0, 0.01, np.zeros(3), 0.0, 0.0)
+        vector_update(q, g, P, 0.0, 0.0, 9.8, par, stats, 0.1, 1.0, out)
+        mag_update(q, g, P, 0.0, 0.2, -0.4, par, 1.0, out)
         _COMPILED = SimpleNamespace(
             predict=predict, vector_update=vector_update, mag_update=mag_update
         )

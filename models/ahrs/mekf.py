@@ -5,10 +5,15 @@ Beyond the thesis's filter (e11, :mod:`.thesis`), whose state is the quaternion 
 whose observation is the quaternion the accelerometer and magnetometer give together:
 
 - the error is a 3-vector rotation (no unit-norm constraint fought by the update, no sign
-  ambiguity), and the gyroscope's bias is estimated (6 error states; Markley 2003);
+  ambiguity), and the gyroscope's bias is estimated (6 error states; Markley 2003) and its
+  scale errors, one per axis (9 error states, unless ``scale_std0`` is 0; Markley &
+  Crassidis 2014, ch. 6): while the magnetometer is refused the heading rides on the
+  gyroscope alone, and a MEMS gyroscope's 1-3 % scale error turns each full turn into
+  4-11 deg of heading; the scale errors are learnt while the board turns with the
+  magnetometer and accelerometer trusted, and drift by ``scale_walk``;
 - prediction runs at every gyroscope sample (trapezoidal rate between two samples), with a
-  process noise that grows with the rate: the gyroscope's scale error turns a fast rotation
-  into an angle error (``gyro_scale``);
+  process noise that grows with the rate: what is left of the gyroscope's scale error and
+  its cross-axis sensitivity turn a fast rotation into an angle error (``gyro_scale``);
 - the accelerometer observes gravity as a vector (its magnitude too), with a covariance that
   adapts to the linear acceleration the body undergoes: the covariance of the accelerometer
   turned into the reference frame, averaged over ``ext_tau`` s, is added to it (gravity
@@ -58,8 +63,13 @@ class MekfSettings:
     the Pmod NAV, with a margin over its data sheet figures).
 
     ``gyro_noise``: angle random walk (rad/sqrt(s)), or one per axis; ``gyro_scale``:
-    relative scale error of the gyroscope (1: 100 %); ``bias_walk``: bias random walk
-    (rad/s/sqrt(s)); ``acc_noise``: accelerometer noise and residual bias (m/s^2, per axis);
+    relative scale error of the gyroscope left unestimated (1: 100 %), a white noise on the
+    angle growing with the rate (cross-axis sensitivity, and the scale error itself when it
+    is not estimated); ``scale_std0``: initial standard deviation of each axis's scale
+    error, estimated (1: 100 %; 0: not estimated, 6 error states; a MEMS gyroscope's data
+    sheet gives 1-3 %); ``scale_walk``: its random walk (1/sqrt(s)); ``bias_walk``: bias
+    random walk (rad/s/sqrt(s)); ``acc_noise``: accelerometer noise and residual bias (m/s^2,
+    per axis);
     ``gravity``: m/s^2; ``mag_noise``: magnetometer noise and calibration residual relative
     to the field; ``acc_gate`` / ``mag_gate``: chi-square gate probabilities; ``ext_tau``:
     s over which the linear acceleration's power is averaged; ``mag_norm_tol``: relative
@@ -81,6 +91,8 @@ class MekfSettings:
 
     gyro_noise: float | tuple[float, float, float] = 5e-4
     gyro_scale: float = 0.005
+    scale_std0: float = 0.03
+    scale_walk: float = 1e-4
     bias_walk: float = 2e-4
     acc_noise: float = 0.3
     gravity: float = 9.81
@@ -115,6 +127,8 @@ class MekfSettings:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a number > 0, got {v!r}")
+        if not (isinstance(self.scale_std0, (int, float)) and 0.0 <= self.scale_std0 < 0.5):
+            raise ValueError(f"scale_std0 must be a number in [0, 0.5), got {self.scale_std0!r}")
         if self.mag_mode not in ("vector", "heading"):
             raise ValueError(f"mag_mode must be 'vector' or 'heading', got {self.mag_mode!r}")
         for name in ("acc_gate", "mag_gate"):
@@ -123,6 +137,8 @@ class MekfSettings:
                 raise ValueError(f"{name} must be a probability in (0, 1), got {v!r}")
         for name in (
             "gyro_scale",
+            "scale_std0",
+            "scale_walk",
             "mag_norm_tol",
             "mag_dip_tol_deg",
             "ref_tau",
@@ -147,16 +163,18 @@ def _kernels() -> Any:
 
 class Mekf:
     """The multiplicative EKF (see module docstring). Feed it samples in time order with
-    :meth:`step`; read :attr:`q`, :attr:`b` (the gyroscope's bias), :meth:`std_deg` and the
-    :attr:`counters`."""
+    :meth:`step`; read :attr:`q`, :attr:`b` (the gyroscope's bias, rad/s), :attr:`scale`
+    (its scale errors, relative), :meth:`std_deg` and the :attr:`counters`."""
 
     def __init__(self, ref: Reference, settings: MekfSettings | None = None) -> None:
         self.ref = ref
         self.s = s = settings or MekfSettings()
         self.k = _kernels()
         self.q = np.array((1.0, 0.0, 0.0, 0.0))
-        self.b = np.zeros(3)
-        self.P = np.zeros((6, 6))
+        self.g = np.zeros(6)  # the gyroscope's calibration: bias (rad/s), scale errors
+        self.b = self.g[0:3]
+        self.scale = self.g[3:6]
+        self.P = np.zeros((9, 9) if s.scale_std0 > 0 else (6, 6))
         self.t: float | None = None
         self._w = (0.0, 0.0, 0.0)
         self.acc_par = np.zeros(npk.ACC_PARAMS)
@@ -219,8 +237,11 @@ class Mekf:
             return False
         q, P, stats, norm, dip = start
         self.q[:] = q
-        self.b[:] = 0.0
-        self.P[:] = P
+        self.g[:] = 0.0
+        self.P[:] = 0.0
+        self.P[:6, :6] = P
+        if self.P.shape[0] > 6:
+            self.P[6:, 6:] = self.s.scale_std0**2 * np.eye(3)
         self.acc_stats[:] = stats
         self.mag_norm, self.mag_dip = norm, dip
         self.t = t
@@ -252,7 +273,8 @@ class Mekf:
             qa[0] = (arw[0] + scale) * dt
             qa[1] = (arw[1] + scale) * dt
             qa[2] = (arw[2] + scale) * dt
-            k.predict(self.q, self.b, self.P, wx, wy, wz, dt, qa, s.bias_walk**2 * dt)
+            k.predict(self.q, self.g, self.P, wx, wy, wz, dt, qa, s.bias_walk**2 * dt,
+                      s.scale_walk**2 * dt)  # fmt: skip
             self.t = t
         self._w = (float(gyro[0]), float(gyro[1]), float(gyro[2]))
         self._acc(acc, dt)
@@ -263,7 +285,7 @@ class Mekf:
     def _acc(self, acc: tuple[float, float, float], dt: float) -> None:
         s, out = self.s, self.out
         a = min(1.0, dt / s.ext_tau) if dt > 0 else 0.0
-        self.k.vector_update(self.q, self.b, self.P, acc[0], acc[1], acc[2], self.acc_par,
+        self.k.vector_update(self.q, self.g, self.P, acc[0], acc[1], acc[2], self.acc_par,
                              self.acc_stats, a, self.acc_gate, out)  # fmt: skip
         self.ext = float(out[3]) / 3.0
         if out[1] == npk.ACCEPTED:
@@ -295,7 +317,7 @@ class Mekf:
             r = s.mag_noise / max(math.cos(par[9]), 0.1) if learnt else s.mag_noise
             par[12] = self._alpha_mean
             par[13] = s.mag_step_sigma * math.sqrt(var + r * r)
-        self.k.mag_update(self.q, self.b, self.P, mag[0], mag[1], mag[2], par, gate, out)
+        self.k.mag_update(self.q, self.g, self.P, mag[0], mag[1], mag[2], par, gate, out)
         status = out[1]
         if status == npk.ACCEPTED:
             self.counters["mag_fused"] += 1

@@ -10,7 +10,8 @@ whose ``nav3`` it sees.
 
 Published columns: the quaternion (body -> world, scalar first), yaw, pitch and roll (deg,
 ``R = Rz(yaw) Ry(pitch) Rx(roll)``); ours adds the standard deviations of its tilt and
-heading (deg) and its estimate of the gyroscope's bias (deg/s).
+heading (deg) and its estimates of the gyroscope's bias (deg/s) and scale errors (%, 0 when
+they are not estimated: ``scale_std0 = 0``).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ QUAT = ("qw", "qx", "qy", "qz")
 ANGLES = ("yaw [deg]", "pitch [deg]", "roll [deg]")
 STD = ("tilt std [deg]", "heading std [deg]")
 BIAS = ("gyro bias x [deg/s]", "gyro bias y [deg/s]", "gyro bias z [deg/s]")
+SCALE = ("gyro scale x [%]", "gyro scale y [%]", "gyro scale z [%]")
 
 
 def check_common(settings: dict[str, Any]) -> None:
@@ -66,7 +68,7 @@ class AhrsModel(_Follow):
     """Our AHRS (:class:`.mekf.Mekf`). Settings: ``board``, ``north_deg`` (90) and the noise
     model and gates of :class:`.mekf.MekfSettings` (same names and units)."""
 
-    columns = (*QUAT, *ANGLES, *STD, *BIAS)
+    columns = (*QUAT, *ANGLES, *STD, *BIAS, *SCALE)
 
     def __init__(
         self,
@@ -74,6 +76,8 @@ class AhrsModel(_Follow):
         north_deg: float = 90.0,
         gyro_noise: float | list[float] = MekfSettings.gyro_noise,
         gyro_scale: float = MekfSettings.gyro_scale,
+        scale_std0: float = MekfSettings.scale_std0,
+        scale_walk: float = MekfSettings.scale_walk,
         bias_walk: float = MekfSettings.bias_walk,
         acc_noise: float = MekfSettings.acc_noise,
         gravity: float = MekfSettings.gravity,
@@ -98,6 +102,8 @@ class AhrsModel(_Follow):
         settings = MekfSettings(
             gyro_noise=gyro_noise,
             gyro_scale=gyro_scale,
+            scale_std0=scale_std0,
+            scale_walk=scale_walk,
             bias_walk=bias_walk,
             acc_noise=acc_noise,
             gravity=gravity,
@@ -148,7 +154,8 @@ class AhrsModel(_Follow):
         ypr = yaw_pitch_roll_deg(q)[0]
         tilt, heading = f.std_deg()
         bias = [math.degrees(float(b)) for b in f.b]
-        return f.t, [*q, *(float(a) for a in ypr), tilt, heading, *bias]
+        scale = [100.0 * float(k) for k in f.scale]
+        return f.t, [*q, *(float(a) for a in ypr), tilt, heading, *bias, *scale]
 
     def counters(self) -> dict[str, int]:
         """Accelerometer and magnetometer samples fused or refused (``mag_disturbed``: the

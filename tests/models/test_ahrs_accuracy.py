@@ -6,9 +6,9 @@ Targets (issue 11) with the worst run measured over 3 seeds x 3 start phases (RE
 "Attitude and heading"): mean attitude error <= 0.3 deg still (worst 0.13), <= 1 deg on
 rotation_slow (0.11), <= 3 deg on rotation_fast (0.15), <= 1 deg while shaking (0.99: the
 thinnest margin; the start phase of the shake matters); a 10 s magnetic disturbance leaves the
-tilt as it was and the heading within 5 deg (still, rotation_slow, shaking: worst 1.6 deg;
-on rotation_fast the gyroscope's scale error, unestimated, reaches 5.1 deg on one seed of
-five: README).
+tilt as it was and the heading within 5 deg (still, rotation_slow, shaking: worst 1.7 deg;
+rotation_fast, where the heading rides on the gyroscope through 2.5 turns, worst 0.8 deg over
+10 seeds with the gyroscope's scale errors estimated, 5.5 deg without: README).
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def test_the_thesis_filter_is_run_beside_it_and_fails_while_shaking():
         [0.0, -0.15, 0.25],  # a magnet: norm and dip far off
     ],
 )
-@pytest.mark.parametrize("scenario", ["still", "rotation_slow", "shaking"])
+@pytest.mark.parametrize("scenario", ["still", "rotation_slow", "rotation_fast", "shaking"])
 def test_a_magnetic_disturbance_of_10_s_leaves_tilt_alone_and_heading_within_5_deg(scenario, field):
     on, off = 3.0 + 15.0, 3.0 + 25.0  # epoch times: 15 s into the run, for 10 s
     events = [
@@ -64,3 +64,20 @@ def test_a_magnetic_disturbance_of_10_s_leaves_tilt_alone_and_heading_within_5_d
     assert refused >= 900, hit.counters
     after = hit.t >= off + 2.0
     assert np.abs(hit.heading[after]).mean() <= np.abs(clean.heading[after]).mean() + 0.3
+
+
+def test_through_a_disturbance_on_rotation_fast_the_heading_holds_on_every_seed():
+    """While the magnetometer is refused for 10 s the board turns 2.5 times (900 deg) on the
+    gyroscope alone: its scale error, learnt from the turns before, must not add up. 10 board
+    seeds (the simulator draws 0.3 % per axis; the unit tests take 2 %)."""
+    on, off = 18.0, 28.0
+    events = [
+        (on, lambda b: b.faults.set("field", sensor="mag", value=[0.1, 0.0, 0.0])),
+        (off, lambda b: b.faults.clear()),
+    ]
+    worst = []
+    for seed in range(10):
+        hit = run_ahrs("rotation_fast", seed, 30.0, events=events)
+        during = (hit.t >= on) & (hit.t < off)
+        worst.append(np.abs(hit.heading[during]).max())
+    assert max(worst) <= 2.5, np.round(worst, 2)

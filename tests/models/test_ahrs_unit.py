@@ -84,12 +84,46 @@ def test_heading_jacobian_matches_numerical_derivative():
 
 
 def test_predict_integrates_a_constant_rate_exactly():
-    q, b, P = np.array((1.0, 0.0, 0.0, 0.0)), np.zeros(3), np.eye(6) * 1e-6
+    q, g, P = np.array((1.0, 0.0, 0.0, 0.0)), np.zeros(6), np.eye(6) * 1e-6
     w = np.array((0.3, -1.2, 2.0))
     for _ in range(100):
-        npk.predict(q, b, P, *w, 0.01, np.zeros(3), 0.0)
+        npk.predict(q, g, P, *w, 0.01, np.zeros(3), 0.0, 0.0)
     want = npk.rotvec_quat(w * 1.0)
     assert attitude_error_deg(q, want)[0] < 1e-9
+
+
+def test_predict_divides_the_rate_by_the_scale_and_its_jacobian_matches():
+    """With scale errors k the body turns at (w_m - b) / (1 + k); Phi's blocks for b and k
+    are the derivatives of the turned angle (body frame) over one step, numerically (to
+    first order in the step's angle, as Sola 2017 eq. 269 takes them: a short step)."""
+    g = np.array((0.01, -0.02, 0.03, 0.2, -0.1, 0.3))  # large scale errors: 1/(1+k) shows
+    wm = np.array((0.3, -1.2, 2.0))
+    dt = 0.001
+    q0 = np.array((1.0, 0.0, 0.0, 0.0))
+
+    def step(g):
+        q, P = q0.copy(), np.zeros((9, 9))
+        npk.predict(q, g, P, *wm, dt, np.zeros(3), 0.0, 0.0)
+        return q
+
+    q = step(g)
+    want = npk.rotvec_quat((wm - g[:3]) / (1 + g[3:]) * dt)
+    assert attitude_error_deg(q, want)[0] < 1e-9
+    P = np.eye(9)
+    npk.predict(q0.copy(), g, P, *wm, dt, np.zeros(3), 0.0, 0.0)
+    # P = Phi Phi^T; Phi's attitude row block against b and k, from the turned angle
+    eps = 1e-7
+    num = np.zeros((3, 6))
+    for j in range(6):
+        d = np.zeros(6)
+        d[j] = eps
+        # truth g + d: the estimate's error is the rotation from it to the truth's
+        dq = npk.quat_mul(np.array((q[0], -q[1], -q[2], -q[3])), step(g + d))
+        num[:, j] = 2.0 * dq[1:] / eps
+    Rd = npk.quat_matrix(npk.rotvec_quat((wm - g[:3]) / (1 + g[3:]) * dt))
+    tol = np.linalg.norm(wm) * dt * dt  # the step's angle, relative, times dt
+    assert np.abs(P[:3, 3:] - num).max() < tol, (P[:3, 3:], num)
+    assert np.abs(P[:3, :3] - (Rd.T @ Rd + num @ num.T)).max() < tol * dt
 
 
 def test_triad_recovers_an_attitude_from_two_vectors():
@@ -133,25 +167,81 @@ def _run(stream, settings=None, backend="numpy"):
     for s in stream.samples:
         v = s.values
         f.step(s.t, v[0:3], v[3:6], v[6:9])
-        out.append(np.concatenate((f.q, f.b, f.P.ravel())))
+        out.append(np.concatenate((f.q, f.g, f.P.ravel())))
     return np.array(out), f
 
 
 @pytest.mark.parametrize("mode", ["heading", "vector"])
-def test_numba_and_numpy_paths_agree(mode):
+@pytest.mark.parametrize(
+    ("scenario", "scale_std0"),
+    [("shaking", 0.03), ("rotation_fast", 0.03), ("rotation_fast", 0.0)],
+)
+def test_numba_and_numpy_paths_agree(mode, scenario, scale_std0):
     """The compiled kernels and the numpy ones give the same filter, step after step, on a
-    run with rejected samples in it (a shake, and a magnetic disturbance)."""
+    run with rejected samples in it (a shake or turns, and a magnetic disturbance), with the
+    gyroscope's scale errors estimated (9 error states) or not (6)."""
     events = [
         (3.0, lambda b: b.faults.set("field", sensor="mag", value=[0.2, 0.0, 0.0])),
         (4.0, lambda b: b.faults.clear()),
     ]
-    stream = nav3_stream({"scenario": "shaking", "epoch": 0.0}, 6.0, seed=5, events=events)
-    settings = MekfSettings(mag_mode=mode, reacquire_s=0.5)
+    model = {"gyro_scale": [0.01, -0.01, 0.02]}
+    stream = nav3_stream(
+        {"scenario": scenario, "epoch": 0.0}, 6.0, seed=5, events=events, model=model
+    )
+    settings = MekfSettings(mag_mode=mode, reacquire_s=0.5, scale_std0=scale_std0)
     a, fa = _run(stream, settings, "numpy")
     b, fb = _run(stream, settings, "numba")
+    assert fa.P.shape == fb.P.shape == ((9, 9) if scale_std0 else (6, 6))
     assert fa.counters == fb.counters
     assert fa.counters["mag_disturbed"] + fa.counters["mag_rejected"] > 20
-    assert np.abs(a - b).max() < 1e-9
+    if scale_std0 and scenario == "rotation_fast":  # the scale states moved: a real check
+        assert abs(fa.scale[2]) > 0.005, fa.scale
+    assert np.abs(a - b).max() < 1e-12, np.abs(a - b).max()
+
+
+def _heading_during(stream, settings, on, off):
+    """Run the filter; (its largest |heading error| (deg) over [on, off), the filter as it
+    was at ``on``)."""
+    from hera.nodes.world import make_scenario, state_at
+
+    sc = make_scenario({"scenario": "rotation_fast", "epoch": 0.0})
+    f = Mekf(world_reference(90.0), settings)
+    worst, at_on = 0.0, None
+    for s in stream.samples:
+        v = s.values
+        if f.step(s.t, v[0:3], v[3:6], v[6:9]) and on <= s.t < off:
+            if at_on is None:
+                at_on = (f.scale.copy(), math.sqrt(f.P[8, 8]) if f.P.shape[0] > 6 else 0.0)
+            err = heading_error_deg(f.q, state_at(sc, 0.0, s.t).orientation)[0]
+            worst = max(worst, abs(err))
+    return worst, at_on
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_gyroscope_scale_error_is_learnt_and_carries_the_heading_through_a_disturbance(
+    seed,
+):
+    """A z gyroscope reading 2 % high (a MEMS gyroscope's usual 1-3 %), turned 360 deg every
+    4 s: in the 15 s before a 10 s magnetic disturbance the filter learns the scale error from
+    the turns, and while the magnetometer is refused it keeps the heading; without the scale
+    states each turn adds 7 deg of heading error."""
+    on, off = 18.0, 28.0
+    events = [
+        (on, lambda b: b.faults.set("field", sensor="mag", value=[0.1, 0.0, 0.0])),
+        (off, lambda b: b.faults.clear()),
+    ]
+    stream = nav3_stream(
+        {"scenario": "rotation_fast", "epoch": 0.0}, 30.0, seed=seed, start=3.0,
+        model={"gyro_scale": [0.0, 0.0, 0.02]}, events=events,
+    )  # fmt: skip
+    worst, (k, k_sd) = _heading_during(stream, MekfSettings(), on, off)
+    # the board's 5 deg mounting tilt leaves 0.02 cos^2(5 deg) = 1.985 % on the body's z
+    assert abs(k[2] - 0.02) < 0.002, k
+    assert np.all(np.abs(k[:2]) < 0.003), k  # never turned about x or y: left near 0
+    assert k_sd < 0.01  # its standard deviation, 0.03 at the start, has shrunk
+    assert worst < 2.0, worst
+    without, _ = _heading_during(stream, MekfSettings(scale_std0=0.0), on, off)
+    assert without > 10.0, without
 
 
 def test_the_filter_refuses_bad_settings():
@@ -163,6 +253,10 @@ def test_the_filter_refuses_bad_settings():
         MekfSettings(acc_gate=1.5)
     with pytest.raises(ValueError, match="mag_mode"):
         MekfSettings(mag_mode="compass")
+    with pytest.raises(ValueError, match="scale_std0"):
+        MekfSettings(scale_std0=-0.01)
+    with pytest.raises(ValueError, match="scale_walk"):
+        MekfSettings(scale_walk=math.nan)
     assert MekfSettings(gyro_noise=[1e-3, 2e-3, 3e-3]).gyro_noise == (1e-3, 2e-3, 3e-3)
 
 
