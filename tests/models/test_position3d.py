@@ -4,7 +4,10 @@ MaxSonars' readings in turn: 20 deg cone, 1-inch rounding, noise), and their boo
 
 Targets (issue 11), worst seed measured in the README: ours <= 2 cm RMSE on ``target3d``
 (worst 1.16); with a sonar lost, the two observed axes within 3 cm (RMS over the loss), the
-lost axis's reported standard deviation growing, all back within 2 s of its return.
+lost axis's reported standard deviation growing, all back within 2 s of its return. At the
+data sheet's 2.5 cm of noise the issue's 2 cm is not met at the published 0.2 s age (an
+oracle told which axis moves gets 1.71-1.95 cm there, README "Known limits"): that case is
+held at its measured level.
 """
 
 from __future__ import annotations
@@ -28,6 +31,22 @@ def test_rmse_on_target3d_is_within_2_cm_on_every_seed_and_beats_e10():
     thesis = [run_position(seed, thesis=True).rmse_cm() for seed in SEEDS[:2]]
     assert max(ours) <= 2.0, np.round(ours, 2)
     assert min(thesis) > 2 * max(ours), (thesis, ours)  # slant ranges read as axial ones
+
+
+def test_at_2_5_cm_of_noise_ours_holds_its_level_beats_e10_and_gains_from_a_longer_lag():
+    """The MaxSonar data sheet's 2.5 cm as white noise (the simulator's default is 1 cm):
+    measured 2.15-2.40 cm over seeds 0-7 at the default 0.2 s age, 1.76-1.92 at ``lag =
+    0.6``, e10 5.95-6.50 (``python tests/support/apps3d_figures.py noise position``)."""
+    noisy = {"noise_m": 0.025}
+    ours = [run_position(seed, sonar_model=noisy).rmse_cm() for seed in SEEDS]
+    thesis = [run_position(seed, sonar_model=noisy, thesis=True).rmse_cm() for seed in SEEDS[:2]]
+    older = [
+        run_position(seed, sonar_model=noisy, settings={"lag": 0.6}).rmse_cm() for seed in SEEDS[:3]
+    ]
+    assert max(ours) <= 2.6, np.round(ours, 2)
+    assert min(thesis) > 2 * max(ours), (thesis, ours)
+    # about four readings of each axis after the estimate instead of one: 0.48-0.51 cm better
+    assert all(o - a >= 0.3 for o, a in zip(ours[:3], older, strict=True)), (ours, older)
 
 
 def _tilted() -> dict:

@@ -116,10 +116,11 @@ def run_position(
     after: float = 3.0,
     sonar_model: dict | None = None,
     settings: dict | None = None,
+    model_class: type | None = None,
 ) -> PositionRun:
-    """Our sonar tracker (or e10) over ``duration`` s of the sync group's readings
-    (``sonar_model``: the simulated MaxSonars' error model's arguments; ``settings``: more
-    model settings)."""
+    """Our sonar tracker (or e10, or ``model_class``: a RangeTracker variant for a
+    diagnostic) over ``duration`` s of the sync group's readings (``sonar_model``: the
+    simulated MaxSonars' error model's arguments; ``settings``: more model settings)."""
     sonars = sonars or SONARS
     w = world or {"scenario": "target3d", "epoch": 0.0}
     mounts = {
@@ -128,7 +129,7 @@ def run_position(
     samples = sonar_stream(
         w, mounts, duration, seed=seed, start=3.0, slot=SLOT, down=down, model=sonar_model
     )
-    cls = ThesisPosition if thesis else RangeTracker
+    cls = model_class or (ThesisPosition if thesis else RangeTracker)
     model = cls(sonars=settings_of(sonars), **(settings or {}))
     t, x = [], []
     for s in samples:
