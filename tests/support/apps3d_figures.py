@@ -99,7 +99,7 @@ def position() -> None:
         f"(worst {max(e10):.2f})"
     )
     r = [run_position(s, sonar_model=NOISY, thesis=True).rmse_cm() for s in range(5)]
-    print(f"e10 at 2.5 cm white noise (ours: part noise): {min(r):.2f}-{max(r):.2f} cm")
+    print(f"e10 at 2.5 cm white noise (ours: part `noise`): {min(r):.2f}-{max(r):.2f} cm")
     sys.path.insert(0, str(Path(__file__).parents[1] / "models"))
     from test_position3d import _tilted
 
