@@ -118,6 +118,8 @@ class Node:
         self.halt = threading.Event()
         self.exit_code = 0
         self.started_at = time.time()
+        self.phase = time.monotonic()
+        """The grid its workers' deadlines share (timer coalescing, :mod:`hera.worker`)."""
         self._factories = services
         self.services: dict[str, NodeService] = {}
         self._handles: list[Any] = []
@@ -291,6 +293,8 @@ class Node:
                 halt=self.halt,
                 args_source=lambda: self.measure_args(cls, decl),
                 gate=gate,
+                # sync measures keep their own phase: their steps wait for slots anyway
+                phase=None if spec.sync else self.phase,
             )
 
         return make
