@@ -10,7 +10,7 @@ its workers) runs its first step at once, as any worker, and its later steps on 
 ``phase + j * period``, the first of them at least half a period after that first step.
 The measures of a node that share a period then wake together and their samples leave in
 one batch: a quiet node wakes once per period instead of once per measure, which on
-loopback cut the 5-node observer cluster's CPU by a third to a half (``hera bench bus``).
+loopback cut the 5-node observer cluster's CPU by about a quarter (``hera bench bus``).
 
 The worker publishes what the measure returns through the node's ``publish`` function and
 reports its exit (normal or with the exception) to its supervisor.
