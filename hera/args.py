@@ -11,7 +11,12 @@ The original kept a table replicated by multicall, lost when the whole cluster s
   is refused and counted (``future``), from the bus, from peers and from the state file, so
   no write from the far future can win forever;
 - every node answers queries on ``hera/<cluster>/args/**`` with all entries it holds, and a
-  starting node asks all live peers before it starts its measures (:meth:`recover`);
+  starting node asks all live peers before it starts its measures (:meth:`recover`); it
+  asks again each time a peer comes up (:meth:`on_peer_up`): a write made while the link
+  to that peer did not exist yet (two nodes starting together) reaches it then;
+- writes go out with blocking congestion control: Zenoh's default drops a put when a
+  link's queue is full, and a dropped write would be missing on that replica until the
+  next peer-up;
 - each node persists its entries to ``<state_dir>/args.msgpack`` (written atomically), so a
   restart of the whole cluster keeps them;
 - ``delete(key)`` writes a tombstone that wins like any later write (so a node that was down
@@ -33,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 import msgpack
+import zenoh
 
 from hera import wallclock
 from hera.bus import query_all
@@ -128,7 +134,9 @@ class ArgsStore:
         payload = _pack(stamp, self.node, value, deleted)  # fails early on unpackable values
         self._merge(key, stamp, self.node, value, deleted)
         if self._session is not None:
-            self._session.put(self._keys.args(key), payload)
+            self._session.put(
+                self._keys.args(key), payload, congestion_control=zenoh.CongestionControl.BLOCK
+            )
 
     def recover(self, timeout: float = 1.0) -> int:
         """Ask every live peer for all entries and merge them; return how many were new."""
@@ -143,6 +151,23 @@ class ArgsStore:
                 continue
             merged += self._merge(key, *entry)
         return merged
+
+    def on_peer_up(self, node: str) -> None:
+        """A peer ``node`` came up (its liveliness token): ask every live peer for all
+        entries again, on a thread of its own (never on the bus's callback thread), so what
+        either side wrote before their link existed is merged on both."""
+        if node == self.node or self._session is None:
+            return
+
+        def pull() -> None:
+            try:
+                got = self.recover(timeout=1.0)
+                if got:
+                    log.info("took %d args entries when %s came up", got, node)
+            except Exception as e:  # a closing session: the next start recovers anyway
+                log.debug("args pull after %s came up failed: %s", node, e)
+
+        threading.Thread(target=pull, name=f"args-pull-{node}", daemon=True).start()
 
     @property
     def clock(self) -> int:

@@ -157,6 +157,7 @@ class Node:
         self.args = ArgsStore(
             self.name, s, self.keys, self.state_dir, self.spec.max_clock_skew_ms * 1_000_000
         )
+        self.peers.on_up = self.args.on_peer_up  # what was written before a link existed
         self._handles.append(
             s.liveliness().declare_subscriber(
                 self.keys.alive_all, self.peers.on_alive, history=True

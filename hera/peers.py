@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import deque
+from collections.abc import Callable
 
 import zenoh
 
@@ -25,10 +26,13 @@ class Peers:
 
     EVENTS = 64
 
-    def __init__(self, keys: Keys) -> None:
+    def __init__(self, keys: Keys, on_up: Callable[[str], None] | None = None) -> None:
+        """``on_up(node)``: called (on the bus's thread: keep it short) when a node that was
+        not up comes up."""
         self.keys = keys
         self.up: dict[str, float] = {}
         self.events: deque[tuple[float, str, str]] = deque(maxlen=self.EVENTS)
+        self.on_up = on_up
 
     def on_alive(self, sample: zenoh.Sample) -> None:
         """Liveliness callback: a node token appeared or disappeared."""
@@ -41,7 +45,13 @@ class Peers:
         now = time.time()
         event = "up" if sample.kind == zenoh.SampleKind.PUT else "down"
         if event == "up":
+            new = node not in self.up
             self.up[node] = now
+            if new and self.on_up is not None:
+                try:
+                    self.on_up(node)
+                except Exception as e:  # a listener's bug must not stop liveliness
+                    log.warning("peer-up listener failed for %s: %s", node, e)
         else:
             self.up.pop(node, None)
         self.events.append((now, node, event))

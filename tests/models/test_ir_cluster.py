@@ -62,8 +62,8 @@ def tracking(tmp_path_factory):
     try:
         wait_for(lambda: _published(c, "computer", "ir_track") > 450, 40, "10 s of estimates")
         before = c.status("computer")["measures"]["ir_track"]["counters"]["ir_long_used"]
-        t_off = time.time()
         reply = c.control("ir_long", "board", {"board": "ir_long/ir", "fault": "disconnect"})
+        t_off = time.time()  # the reply came: the board is disconnected from now on at least
         assert reply.get("ok", True) and reply["fault"]["fault"] == "disconnect", reply
         time.sleep(8.0)
         t_on = time.time()

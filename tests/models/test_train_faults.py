@@ -45,8 +45,9 @@ def test_e7_keeps_tracking_through_a_sonar_node_kill(cluster):
         return c.status("computer")["measures"]["track_gyro"]["published"]
 
     wait_for(lambda: published() > 700, 60, "35 s of e7 estimates (25 s settled)")
+    victim = c.pid("sonar_1")  # asked first: the kill follows the clock read at once
     t_kill = time.time()
-    os.kill(c.pid("sonar_1"), signal.SIGKILL)
+    os.kill(victim, signal.SIGKILL)
     wait_for(lambda: c.launcher_state()["sonar_1"]["restarts"] == 1, 10, "sonar_1 restarted")
 
     def sonar_1_published() -> int:

@@ -7,6 +7,7 @@ from hera.args import ArgsStore
 from hera.bus import BusConfig, open_session, tcp_endpoint
 from hera.keys import Keys
 from hera.launcher import free_ports
+from hera.peers import Peers
 
 
 def test_last_writer_wins_by_timestamp_then_origin():
@@ -61,6 +62,40 @@ def test_replicates_between_sessions_and_recovers_on_start():
             a3.close()
             s3.close()
     finally:
+        a1.close()
+        a2.close()
+        s1.close()
+        s2.close()
+
+
+@pytest.mark.parametrize("hooked", [True, False], ids=["peer-up pull", "no pull"])
+def test_a_write_made_before_the_link_existed_reaches_the_peer_when_it_comes_up(hooked):
+    """Two nodes starting together: n1 writes while no link to n2 exists (its put reaches
+    nobody) and n2 never calls recover. With the peer-up hook a node wires (liveliness ->
+    Peers.on_up -> ArgsStore.on_peer_up), n2 takes the entry once n1's token reaches it;
+    without it, n2 never does (the case the hook is for)."""
+    keys = Keys("argup")
+    p1, p2 = free_ports("127.0.0.1", 2)
+    e1, e2 = tcp_endpoint("127.0.0.1", p1), tcp_endpoint("127.0.0.1", p2)
+    s1 = open_session(BusConfig(listen=(e1,)))
+    a1 = ArgsStore("n1", s1, keys)
+    a1.put("calib/n1/imu", [0.1, 0.2])  # nobody to hear it
+    token = s1.liveliness().declare_token(keys.alive("n1"))
+    s2 = open_session(BusConfig(listen=(e2,), connect=(e1,)))
+    a2 = ArgsStore("n2", s2, keys)
+    peers = Peers(keys, on_up=a2.on_peer_up if hooked else None)
+    sub = s2.liveliness().declare_subscriber(keys.alive_all, peers.on_alive, history=True)
+    try:
+        wait_for(lambda: "n1" in peers.up, 5, "n2 to see n1 up")
+        if hooked:
+            wait_for(lambda: a2.get("calib/n1/imu") == [0.1, 0.2], 5, "the pull on peer-up")
+        else:
+            a1.put("other", 1)  # a write after the link exists does arrive...
+            wait_for(lambda: a2.get("other") == 1, 5, "a later write")
+            assert a2.get("calib/n1/imu") is None  # ...the earlier one never does
+    finally:
+        sub.undeclare()
+        token.undeclare()
         a1.close()
         a2.close()
         s1.close()
