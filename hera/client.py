@@ -200,7 +200,26 @@ class ClusterClient:
     def query(
         self, node: str, verb: str, request: dict | None = None, timeout: float = 1.0
     ) -> dict[str, dict[str, Any]]:
-        """Send a control query to ``node`` (``*`` for all); replies by node name."""
+        """Send a control query to ``node`` (``*`` for all); replies by node name.
+
+        One named node is asked again while its query ends with no reply before
+        ``timeout``: Zenoh ends a query at once when no queryable matches it, which is what a
+        session just opened sees until the node's declarations reach it (a tool's first
+        query, or a node just restarted). A query the node received is never sent twice: it
+        answers every query, so such a query ends with its reply or at the timeout."""
+        import time
+
+        deadline = time.monotonic() + timeout
+        while True:
+            left = max(0.05, deadline - time.monotonic())
+            out = self._ask(node, verb, request, left)
+            if "*" in node or out or time.monotonic() >= deadline - 0.05:
+                return out
+            time.sleep(0.02)  # the node's declarations are on their way
+
+    def _ask(
+        self, node: str, verb: str, request: dict | None, timeout: float
+    ) -> dict[str, dict[str, Any]]:
         out: dict[str, dict[str, Any]] = {}
         replies = query_all(
             self.session,

@@ -21,6 +21,7 @@ is at most L + D.
 from __future__ import annotations
 
 import random
+import secrets
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
@@ -62,10 +63,15 @@ class GroupCore:
         now: float,
         rng: random.Random | None = None,
         promises: Promises | None = None,
+        incarnation: str | None = None,
     ) -> None:
+        """``incarnation``: this process's id (random by default): with ``me`` it names the
+        terms it leads (``term_id``), so a host restarted with its promises lost that is
+        elected at an epoch it led before is not taken for its old term by a client."""
         if me not in hosts:
             raise ValueError(f"node {me!r} is not among the hosts {hosts}")
         self.me = me
+        self.term_id = f"{me}#{incarnation or secrets.token_hex(4)}"
         self.hosts = sorted(set(hosts))
         self.majority = len(self.hosts) // 2 + 1
         self.timing = timing
@@ -118,7 +124,7 @@ class GroupCore:
         if term is None or self.table is None or self.closed:
             return [(ticket, None)]
         if req.known_epoch > term.epoch or (
-            req.known_epoch == term.epoch and req.known_leader not in ("", self.me)
+            req.known_epoch == term.epoch and req.known_leader not in ("", self.term_id)
         ):
             self.seen_epoch = max(self.seen_epoch, req.known_epoch)
             return [(ticket, None), *self.end_term("a client knows a newer term")]
@@ -170,7 +176,7 @@ class GroupCore:
         )
         if res is not None:
             w, g = res
-            reply = GrantReply(g.epoch, g.token, SlotTable.grant_duration(w, g), self.me)
+            reply = GrantReply(g.epoch, g.token, SlotTable.grant_duration(w, g), self.term_id)
             out.append((w.ticket, reply.encode()))
         return out
 

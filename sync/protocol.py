@@ -105,8 +105,9 @@ class AcquireRequest:
     """A measure asks for a slot of ``duration`` s; it gives up after ``timeout`` s.
 
     ``known_epoch``/``known_leader``: the newest term the asker was granted under (0, ""
-    if none). A leader of a lower epoch, or of the same epoch under another name (its
-    promises were lost), steps down and is re-elected above it. Optional on the wire
+    if none; the leader as its term id ``<node>#<incarnation>``). A leader of a lower epoch,
+    or of the same epoch under another term id (another host, or this host before a restart
+    that lost its promises), steps down and is re-elected above it. Optional on the wire
     (``k``, ``kl``).
     """
 
@@ -147,6 +148,7 @@ class GrantReply:
 
     ``duration`` = the leader-measured time the request waited + the slot asked for, so a
     lease counted by the asker from before it asked ends no later than the leader's.
+    ``leader``: the term id of the granting leader, ``<node>#<incarnation>``.
     """
 
     epoch: int
