@@ -26,6 +26,16 @@ raise false alarms under packet loss. A SIGKILLed node is noticed in millisecond
 the lease, because the kernel closes its sockets.
 """
 
+CONNECT_RETRY = {"period_init_ms": 200, "period_max_ms": 1000, "period_increase_factor": 2}
+"""How often a peer or router dials an endpoint again that did not answer, or whose link
+was lost: after 0.2 s, then doubling up to every 1 s.
+
+Zenoh's default (1 s doubling to 4 s) was measured to link a peer up to 2.8 s after the
+other side began listening (2.2-5.1 s gaps between two opens, one side dialling); with this
+setting 0.2-0.8 s. Every link of a starting cluster, of a restarted node's peers and of a
+healed partition forms that much sooner, for one failed TCP dial per second to a dead peer.
+"""
+
 
 @dataclass(frozen=True)
 class BusConfig:
@@ -50,12 +60,14 @@ class BusConfig:
                 raise ValueError(f"endpoint must look like 'tcp/127.0.0.1:7447', got {ep!r}")
 
     def to_zenoh(self) -> zenoh.Config:
-        """Build the zenoh.Config: explicit endpoints, no multicast scouting, our lease."""
+        """Build the zenoh.Config: explicit endpoints, :data:`CONNECT_RETRY`, no multicast
+        scouting, our lease."""
         cfg = zenoh.Config()
         cfg.insert_json5("mode", json.dumps(self.mode))
         if self.mode != "client":
             cfg.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         cfg.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        cfg.insert_json5("connect/retry", json.dumps(CONNECT_RETRY))
         cfg.insert_json5("scouting/multicast/enabled", "false")
         cfg.insert_json5("transport/link/tx/lease", str(int(self.lease_ms)))
         cfg.insert_json5("transport/link/tx/keep_alive", "4")

@@ -16,8 +16,9 @@
   launcher's pid, so they stop even if the launcher is SIGKILLed.
 - SIGINT, SIGTERM, ``hera down`` or the end of ``--duration`` stop everything: SIGTERM to
   each node, SIGKILL after the shutdown timeout, exit 0, nothing left behind. ``--duration``
-  counts from when every node answers (all its measures registered), so a slow start (a
-  loaded machine, a first import) does not eat the run; a node not up within
+  counts from when every node answers (all its measures registered) and sees the others
+  alive (:func:`not_up`), so a slow start (a loaded machine, a first import, a link Zenoh
+  dials again after a failed first try) does not eat the run; a node not up within
   :data:`UP_WAIT_S` does not hold the clock.
 - ``web``: serve the live web view (:mod:`hera.console`) on that loopback port while the
   cluster runs; ``mcap``: record every sample to that MCAP file (:mod:`hera.export.mcap`).
@@ -63,6 +64,24 @@ UP_POLL_S = 0.25
 """How often (and how long each time) the launcher asks its nodes whether they are up."""
 UP_WAIT_S = 30.0
 """``--duration`` counts from when every node is up, or from this long after the start."""
+
+
+def not_up(local: set[str], status: dict[str, Any]) -> dict[str, str]:
+    """Which of the ``local`` nodes are not up yet, given a status query's answers, and why.
+
+    A node is up when it answers (so all its measures are registered) and sees every other
+    local node alive (a link to it exists: what they publish reaches each other). A link
+    that Zenoh retries after a failed first dial can come seconds after both answer."""
+    missing: dict[str, str] = {}
+    for node in sorted(local):
+        st = status.get(node)
+        if st is None:
+            missing[node] = "does not answer"
+            continue
+        unseen = local - set(st.get("peers", ())) - {node}
+        if unseen:
+            missing[node] = "does not see " + ", ".join(sorted(unseen))
+    return missing
 
 
 def busy_ports(spec: ClusterSpec, local: set[str] | None = None) -> list[str]:
@@ -491,20 +510,20 @@ class Launcher:
         return text
 
     def _all_up(self, client: ClusterClient, waited: float) -> float | None:
-        """When every node of this launcher answers a status query (so every measure is
-        registered), or :data:`UP_WAIT_S` has passed: the monotonic time the run's
-        ``--duration`` counts from, said on the terminal; None while still waiting."""
+        """When every node of this launcher is up (see :func:`not_up`), or :data:`UP_WAIT_S`
+        has passed: the monotonic time the run's ``--duration`` counts from, said on the
+        terminal; None while still waiting."""
         local = set(self.nodes)
         if local:
             try:
-                answered = set(client.status(timeout=UP_POLL_S)) & local
+                missing = not_up(local, client.status(timeout=UP_POLL_S))
             except Exception:  # a query that fails now is asked again at the next poll
-                answered = set()
-            if answered != local and waited < UP_WAIT_S:
+                missing = {n: "does not answer" for n in local}
+            if missing and waited < UP_WAIT_S:
                 return None
-            if answered != local:
-                missing = ", ".join(sorted(local - answered))
-                self._say(f"{missing} not up after {UP_WAIT_S:.0f} s; the run counts from now")
+            if missing:
+                why = "; ".join(f"{n} {w}" for n, w in sorted(missing.items()))
+                self._say(f"not up after {UP_WAIT_S:.0f} s: {why}; the run counts from now")
             else:
                 runs = "" if self.duration is None else f"; running {self.duration:g} s"
                 self._say(f"all {len(local)} nodes up in {waited:.1f} s{runs}")

@@ -139,8 +139,12 @@ def test_an_out_of_tree_application_runs_scores_and_replays(installed, tmp_path)
     assert ev.returncode == 0, ev.stderr
     rows = {(r["model"], r["node"]): r for r in json.loads(ev.stdout)}
     assert set(rows) == {("thermo_filter", "sensor"), ("thermo_filter", "desk")}
+    said = up.stdout[-3000:] + "".join(
+        f"\n--- {log.name}\n" + log.read_text()[-3000:] for log in (run / "logs").glob("*.log")
+    )
     for r in rows.values():
-        assert r["application"] == "thermo" and r["estimates"] > 40
+        assert r["application"] == "thermo", r
+        assert r["estimates"] > 40, f"{r}\n{said}"  # 8 s at 10 Hz from when all were up
         assert r["rmse_degc"] < 0.25  # sensor noise 0.3 degC: the filter does better
     # plots are the application's too; this install has no matplotlib, and says so
     assert "plots skipped: plots need matplotlib: pip install 'hera-fusion[plot]'" in ev.stderr
