@@ -33,11 +33,12 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar, Protocol
-
-import numpy as np
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 from hera.resources import Resources
+
+if TYPE_CHECKING:  # pragma: no cover
+    import numpy as np  # imported where used: a node that evaluates nothing never loads it
 
 
 @dataclass(frozen=True)
@@ -98,6 +99,8 @@ class SeriesTruth:
         self._v = series.values
 
     def at(self, t: float) -> Mapping[str, float]:
+        import numpy as np
+
         if not self._t[0] <= t <= self._t[-1]:
             return {}
         return {c: float(np.interp(t, self._t, self._v[:, i])) for i, c in enumerate(self.columns)}
@@ -117,6 +120,8 @@ class Series:
     measure: type | None = None
 
     def __post_init__(self) -> None:
+        import numpy as np
+
         self.t = np.asarray(self.t, dtype=float).reshape(-1)
         values = np.asarray(self.values, dtype=float)
         width = len(self.columns) if not values.size else -1

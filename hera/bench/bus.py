@@ -4,8 +4,10 @@ Prints, each measured in this run:
 
 - publish-to-peer-store latency (p50, p99) between two node processes at 100 Hz and 1 kHz;
 - how many messages per second one node's store absorbs from a flooding peer;
-- the CPU share and the memory (RSS of each node) of an idle 5-node observer cluster
-  (deploy/observers.toml; a node that runs no filter never loads numba);
+- the CPU share and the memory (RSS of each node) of the 5-node observer cluster
+  (deploy/observers.toml: 20 counters at 10 Hz; a node that runs no filter loads neither
+  numba nor numpy), and its CPU share once its counters are stopped through the control
+  plane (truly idle: what the runtime itself costs);
 - how fast a crashed measure runs again, and how fast peers notice a SIGKILLed and a
   SIGSTOPped node;
 - the latency cost of security: publish-to-store p50 at 1 kHz with user/password
@@ -188,21 +190,43 @@ def _down_seen(c: ClusterClient, victim: str, since: float, timeout: float) -> f
     return None
 
 
+def _cpu_share(pids: dict[str, int], seconds: float) -> float:
+    """Percent of one core the processes ``pids`` used together over ``seconds``."""
+    before = {n: _cpu_seconds(p) for n, p in pids.items()}
+    t0 = time.monotonic()
+    time.sleep(seconds)
+    span = time.monotonic() - t0
+    return 100 * sum(_cpu_seconds(p) - before[n] for n, p in pids.items()) / span
+
+
+def _each_measure(c: ClusterClient, measures: dict[str, list[str]], verb: str) -> None:
+    """Send ``verb`` (start or stop) for every measure of every node; RuntimeError if one
+    is refused or unanswered."""
+    for node, names in measures.items():
+        for m in names:
+            reply = c.query(node, verb, {"measure": m}).get(node, {})
+            if not reply.get("ok"):
+                raise RuntimeError(f"{verb} {m} on {node}: {reply.get('error', 'no answer')}")
+
+
 def observers(cpu_seconds: float, crashes: int) -> dict[str, object]:
-    """CPU share, crash restart time and failure detection on the 5-node observer cluster."""
+    """CPU share (counters running, then stopped), crash restart time and failure detection
+    on the 5-node observer cluster."""
     out: dict[str, object] = {}
     with running(None, observers_spec()) as c:
         time.sleep(2.0)
         status = c.status(1.0)
         pids = {n: st["pid"] for n, st in status.items()}
         out["rss_mb"] = [st["rss_mb"] for st in status.values() if st.get("rss_mb") is not None]
-        before = {n: _cpu_seconds(p) for n, p in pids.items()}
-        t0 = time.monotonic()
-        time.sleep(cpu_seconds)
-        span = time.monotonic() - t0
-        used = {n: _cpu_seconds(p) - before[n] for n, p in pids.items()}
-        out["cpu_total_pct"] = 100 * sum(used.values()) / span
+        out["cpu_total_pct"] = _cpu_share(pids, cpu_seconds)
         out["cpu_machine_pct"] = out["cpu_total_pct"] / os.cpu_count()
+        # truly idle: every counter stopped through the control plane, the nodes, their
+        # links, liveliness and supervisors still running
+        counters = {n: sorted(st["measures"]) for n, st in status.items()}
+        _each_measure(c, counters, "stop")
+        time.sleep(1.0)
+        out["idle_cpu_pct"] = _cpu_share(pids, cpu_seconds)
+        _each_measure(c, counters, "start")
         restarts = []
         for _ in range(crashes):
             # a crash of a measure that has run a while: one within FAST_CRASH_S of its
@@ -260,10 +284,16 @@ def main(argv: list[str]) -> int:
         ("latency p99 @1 kHz", fmt(lat1k.get("p99"), "ms", 3), "", ""),
         ("store absorbs", f"{rate:,.0f} msg/s", "", ""),
         (
-            "idle 5-node observers CPU",
+            "5-node observers CPU, 20 counters at 10 Hz",
             f"{obs['cpu_total_pct']:.1f} % of one core "
             f"({obs['cpu_machine_pct']:.1f} % of {os.cpu_count()} cores)",
+            "<= 10 %",
             "",
+        ),
+        (
+            "5-node observers CPU, counters stopped",
+            f"{obs['idle_cpu_pct']:.1f} % of one core",
+            "<= 3 %",
             "",
         ),
         (

@@ -41,7 +41,7 @@ from hera.node import Node
 import hera.measures.counter, hera.measures.beacon  # what an observer node runs
 Node._select_estimation_backend(types.SimpleNamespace(spec=types.SimpleNamespace(
     estimation_backend={choice!r})))
-print("after start:", "numba" in sys.modules)
+print("after start:", "numba" in sys.modules, "numpy" in sys.modules)
 from hera.estimation import KalmanFilter, backend
 print("after import:", "numba" in sys.modules)
 KalmanFilter([0.0], [[1.0]], F=[[1.0]], Q=0.1)
@@ -51,8 +51,9 @@ print("after filter:", "numba" in sys.modules, backend.backend())
 
 @pytest.mark.parametrize("choice", ["auto", "numba", "numpy"])
 def test_a_node_loads_numba_only_when_a_measure_makes_a_filter(choice):
-    """The node's start records the spec's backend; numba is imported (and its kernels
-    loaded) by the first filter, on the numba and auto backends only."""
+    """The node's start records the spec's backend (importing neither the estimation
+    package nor numpy); numba is imported (and its kernels loaded) by the first filter, on
+    the numba and auto backends only."""
     import numba  # noqa: F401  (a test requirement: missing, the test fails, never skips)
 
     out = subprocess.run(
@@ -64,7 +65,7 @@ def test_a_node_loads_numba_only_when_a_measure_makes_a_filter(choice):
     assert out.returncode == 0, out.stderr[-2000:]
     compiled = choice != "numpy"
     assert out.stdout.splitlines() == [
-        "after start: False",
+        "after start: False False",  # nor numpy: an observer node never loads it
         "after import: False",
         f"after filter: {compiled} {'numba' if compiled else 'numpy'}",
     ]

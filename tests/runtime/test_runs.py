@@ -192,3 +192,26 @@ def test_the_launcher_does_not_restart_a_node_that_cannot_start(tmp_path, monkey
     assert not any(
         os.path.exists(f"/proc/{p.proc.pid}") and p.proc.poll() is None for p in la.nodes.values()
     )
+
+
+def test_a_node_run_by_hand_checks_its_whole_spec_first(tmp_path):
+    """``hera node`` checks the spec (in a child process, so the node never holds every
+    installed application) and starts nothing when it is wrong; ``--check-only`` checks
+    and exits."""
+    spec = tmp_path / "s.toml"
+    spec.write_text(
+        '[cluster]\nname = "n"\n[[nodes]]\nname = "a"\n[[nodes.measures]]\nuse = "counter"\n'
+        'name = "obs1"\nargs = { prefxi = "obs" }\n'
+    )
+    wrong = (
+        f"hera node: {spec}: measure 'obs1' of node 'a': args: unknown key 'prefxi' "
+        "(did you mean 'prefix'?)"
+    )
+    for extra in ((), ("--check-only",)):
+        out = hera(tmp_path, "node", str(spec), "--node", "a", *extra)
+        assert out.returncode == 2, out.stderr
+        assert out.stderr.count(wrong) == 1, out.stderr
+        assert "node a up" not in out.stderr
+    spec.write_text(spec.read_text().replace("prefxi", "prefix"))
+    out = hera(tmp_path, "node", str(spec), "--node", "a", "--check-only")
+    assert (out.returncode, out.stderr) == (0, "")

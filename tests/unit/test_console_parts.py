@@ -322,3 +322,25 @@ def test_the_console_joins_model_columns_with_the_truth_and_builds_the_panels():
         ]
     finally:
         console.close()
+
+
+def test_the_lazily_loaded_runtime_packages_are_never_reloaded(tmp_path, monkeypatch):
+    """A node loads the estimation package and numpy only for a filter: they belong to the
+    runtime all the same, loaded or not; a package of the user's does not."""
+    from hera import reload
+
+    (tmp_path / "rl_user.py").write_text("X = 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(sys, "dont_write_bytecode", True)
+    reload.freeze_runtime()
+    for name in ("hera.estimation", "hera.estimation.ekf", "hera.fusion", "numpy.linalg"):
+        assert reload.is_runtime(name), name
+    with pytest.raises(ValueError, match="part of the runtime"):
+        reload.target_modules("hera.estimation.ekf")
+    import rl_user  # noqa: F401
+
+    try:
+        assert not reload.is_runtime("rl_user")
+        assert reload.target_modules("rl_user") == ["rl_user"]
+    finally:
+        sys.modules.pop("rl_user", None)

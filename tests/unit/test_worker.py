@@ -8,16 +8,26 @@ import time
 from nodes_helpers import make_ctx
 
 from hera.measure import Measure, Reading
-from hera.worker import Worker
+from hera.worker import Worker, on_grid
 
 
-def run_worker(cls, period, iterations, args=None):
+def start_worker(cls, period, iterations, args=None, phase=None):
     ctx = make_ctx("w", period=period, iterations=iterations)
     published, done = [], threading.Event()
     w = Worker(
-        cls, args or {}, ctx, lambda name, r, g: published.append(r), lambda w, e: done.set()
+        cls,
+        args or {},
+        ctx,
+        lambda name, r, g: published.append(r),
+        lambda w, e: done.set(),
+        phase=phase,
     )
     w.start()
+    return w, published, done
+
+
+def run_worker(cls, period, iterations, args=None, phase=None):
+    w, published, done = start_worker(cls, period, iterations, args, phase)
     assert done.wait(30)
     return w, published
 
@@ -87,3 +97,44 @@ def test_none_is_not_published_and_iterations_end_normally():
     w, pub = run_worker(Odd, 0.001, 6)
     assert [r.values for r in pub] == [[1.0], [3.0], [5.0]]
     assert (w.stats.steps, w.stats.empty, w.error) == (6, 3, None)
+
+
+def test_on_grid_gives_the_first_grid_instant_at_or_after_t():
+    assert on_grid(10.0, 0.5, 10.0) == 10.0
+    assert on_grid(10.0, 0.5, 10.1) == 10.5
+    assert on_grid(10.0, 0.5, 9.9) == 10.0
+    assert on_grid(10.0, 0.5, 12.25) == 12.5
+
+
+def grid_offsets(times, phase, period):
+    """Where each step began within its period of the grid ``phase + j * period``."""
+    return [(t - phase) % period for t in times]
+
+
+def test_workers_sharing_a_phase_step_together_after_their_first_step():
+    """Timer coalescing: two workers started half a period apart, given one phase, run
+    their first step at once and every later one on the shared grid."""
+    period, phase = 0.1, time.monotonic()
+    time.sleep(0.02)
+    a, pub_a, done_a = start_worker(Stamp, period, 8, phase=phase)
+    time.sleep(period / 2)
+    t_start = time.monotonic()
+    b, pub_b, done_b = start_worker(Stamp, period, 8, phase=phase)
+    assert done_a.wait(30) and done_b.wait(30)
+    first_b = pub_b[0].values[0]
+    assert first_b - t_start < period / 2  # the first step is not held back to the grid
+    for pub in (pub_a, pub_b):
+        times = [r.values[0] for r in pub]
+        assert times[1] - times[0] >= period / 2  # never two steps within half a period
+        # a step begins after its grid instant (late at most by the machine's wake-up)
+        assert all(off < period / 2 for off in grid_offsets(times[1:], phase, period)), times
+
+
+def test_without_a_phase_a_worker_keeps_its_own_grid():
+    """The check above must fail for a worker that is not coalesced: started 0.6 period
+    off the grid, it stays there."""
+    period, phase = 0.1, time.monotonic()
+    time.sleep(0.6 * period)
+    _, pub = run_worker(Stamp, period, 6)
+    offsets = grid_offsets([r.values[0] for r in pub][1:], phase, period)
+    assert not all(off < period / 2 for off in offsets), offsets
