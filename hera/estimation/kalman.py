@@ -19,7 +19,6 @@ from .correction import (
     LinearisedFilter,
     _as_matrix,
     _new,
-    _set_outcomes,
     _tuple_new,
     as_blocks,
     check_dt,
@@ -245,9 +244,9 @@ class KalmanFilter(LinearisedFilter):
         thr = _INF if gate is None else gate_threshold(gate, m)
         n = self.n
         x_prior = _empty(n)
-        P_prior = _empty((n, n))
+        P_prior = _empty(self._nn)
         x_out = _empty(n)
-        P_out = _empty((n, n))
+        P_out = _empty(self._nn)
         flags = b.kflags | self._jflag
         H, z, noise, P = b.H, b.z, b.noise, self._P
         try:
@@ -271,9 +270,9 @@ class KalmanFilter(LinearisedFilter):
             return self.update(blocks, gate)
         res = _new(UpdateResult)
         if nis > thr:
-            _set_outcomes(res, [_tuple_new(BlockOutcome, (b.label, m, nis, False, thr))])
+            res.outcomes = [_tuple_new(BlockOutcome, (b.label, m, nis, False, thr))]
             return res
         t = None if gate is None else thr
-        _set_outcomes(res, [_tuple_new(BlockOutcome, (b.label, m, nis, True, t))])
+        res.outcomes = [_tuple_new(BlockOutcome, (b.label, m, nis, True, t))]
         self._commit_update(x_out, P_out, res)
         return res

@@ -104,7 +104,6 @@ class DetailedResult(UpdateResult):
 
 _new = object.__new__
 _tuple_new = tuple.__new__
-_set_outcomes = UpdateResult.outcomes.__set__  # type: ignore[attr-defined]
 
 
 def make_outcome(
@@ -118,5 +117,5 @@ def make_outcome(
 def make_result(outcomes: list[BlockOutcome]) -> UpdateResult:
     """``UpdateResult(outcomes)`` for the hot path (same object, no dataclass ``__init__``)."""
     r = _new(UpdateResult)
-    _set_outcomes(r, outcomes)
+    r.outcomes = outcomes
     return r
