@@ -628,13 +628,16 @@ class LinearisedFilter(FilterState):
                 except TypeError:  # e.g. an integer Jacobian or h(x): numpy converts it
                     nis = -1.0
                 if nis >= 0.0:  # else a status code: the numpy path below decides
-                    # The result built in place (tuple.__new__: no call layers).
+                    # results.single_result written out (no call layer; the outcome is
+                    # built when read).
                     res = _new(UpdateResult)
                     if nis > thr:  # gated out: the state stays as it is
-                        res.outcomes = [_tuple_new(BlockOutcome, (b.label, m, nis, False, thr))]
+                        res._one = (b.label, m, nis, False, thr)
+                        res._outcomes = None
                         return res
                     t = None if gate is None else thr
-                    res.outcomes = [_tuple_new(BlockOutcome, (b.label, m, nis, True, t))]
+                    res._one = (b.label, m, nis, True, t)
+                    res._outcomes = None
                     self._x = self.x_post = x_out
                     self._P = self.P_post = P_out
                     if self.history is not None:

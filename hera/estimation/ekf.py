@@ -22,7 +22,6 @@ from .correction import (
     LinearisedFilter,
     _kernel_inputs,
     _new,
-    _tuple_new,
     as_blocks,
     check_dt,
     process_noise,
@@ -30,7 +29,7 @@ from .correction import (
 from .gating import gate_threshold
 from .numerics import finite, numerical_jacobian
 from .observations import Block, Observations
-from .results import BlockOutcome, UpdateResult
+from .results import UpdateResult
 from .stacking import SCRATCH, grow_scratch
 
 __all__ = ["ExtendedKalmanFilter"]
@@ -243,10 +242,12 @@ class ExtendedKalmanFilter(LinearisedFilter):
             return self.update(blocks, gate)
         res = _new(UpdateResult)
         if nis > thr:
-            res.outcomes = [_tuple_new(BlockOutcome, (b.label, m, nis, False, thr))]
+            res._one = (b.label, m, nis, False, thr)
+            res._outcomes = None
             return res
         t = None if gate is None else thr
-        res.outcomes = [_tuple_new(BlockOutcome, (b.label, m, nis, True, t))]
+        res._one = (b.label, m, nis, True, t)
+        res._outcomes = None
         self._x = self.x_post = x_out
         self._P = self.P_post = P_out
         if self.history is not None:

@@ -19,7 +19,6 @@ from .correction import (
     LinearisedFilter,
     _as_matrix,
     _new,
-    _tuple_new,
     as_blocks,
     check_dt,
     process_noise,
@@ -27,7 +26,7 @@ from .correction import (
 from .gating import gate_threshold
 from .numerics import finite
 from .observations import Block, Observations
-from .results import BlockOutcome, UpdateResult
+from .results import UpdateResult
 from .stacking import SCRATCH, grow_scratch
 
 __all__ = ["KalmanFilter"]
@@ -270,9 +269,11 @@ class KalmanFilter(LinearisedFilter):
             return self.update(blocks, gate)
         res = _new(UpdateResult)
         if nis > thr:
-            res.outcomes = [_tuple_new(BlockOutcome, (b.label, m, nis, False, thr))]
+            res._one = (b.label, m, nis, False, thr)
+            res._outcomes = None
             return res
         t = None if gate is None else thr
-        res.outcomes = [_tuple_new(BlockOutcome, (b.label, m, nis, True, t))]
+        res._one = (b.label, m, nis, True, t)
+        res._outcomes = None
         self._commit_update(x_out, P_out, res)
         return res
