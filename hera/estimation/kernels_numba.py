@@ -476,25 +476,65 @@ def _update_block(x, P, H, z, hx, noise, thr, flags, ws, x_out, P_out):
         nis += t * t
     if not nis <= thr:
         return nis
-    for i in range(m):  # K^T = L^-1 G (forward substitution on the rows of G) ...
-        ki = o_k + i * n
+    # K^T = L^-T L^-1 G by forward then backward substitution, and x_out = x + K y. For
+    # m = 2, 3 column by column of K^T with L's entries in registers, each column's two
+    # substitutions and x_out's entry together: the same operations in the same order as
+    # the general loops (the same result to the bit), a third of their time at n = 9.
+    if m == 2:
+        l00 = ws[o_l]
+        l10 = ws[o_l + 2]
+        l11 = ws[o_l + 3]
+        y0 = ws[0]
+        y1 = ws[1]
         for j in range(n):
-            t = ws[o_g + i * n + j]
-            for p in range(i):
-                t -= ws[o_l + i * m + p] * ws[o_k + p * n + j]
-            ws[ki + j] = t / ws[o_l + i * m + i]
-    for i in range(m - 1, -1, -1):  # ... then L^-T (backward substitution)
-        ki = o_k + i * n
+            c0 = ws[o_g + j] / l00
+            c1 = (ws[o_g + n + j] - l10 * c0) / l11
+            c1 = c1 / l11
+            c0 = (c0 - l10 * c1) / l00
+            ws[o_k + j] = c0
+            ws[o_k + n + j] = c1
+            x_out[j] = x[j] + c0 * y0 + c1 * y1
+    elif m == 3:
+        l00 = ws[o_l]
+        l10 = ws[o_l + 3]
+        l11 = ws[o_l + 4]
+        l20 = ws[o_l + 6]
+        l21 = ws[o_l + 7]
+        l22 = ws[o_l + 8]
+        y0 = ws[0]
+        y1 = ws[1]
+        y2 = ws[2]
         for j in range(n):
-            t = ws[ki + j]
-            for p in range(i + 1, m):
-                t -= ws[o_l + p * m + i] * ws[o_k + p * n + j]
-            ws[ki + j] = t / ws[o_l + i * m + i]
-    for i in range(n):
-        t = x[i]
-        for r in range(m):
-            t += ws[o_k + r * n + i] * ws[r]
-        x_out[i] = t
+            c0 = ws[o_g + j] / l00
+            c1 = (ws[o_g + n + j] - l10 * c0) / l11
+            c2 = (ws[o_g + 2 * n + j] - l20 * c0 - l21 * c1) / l22
+            c2 = c2 / l22
+            c1 = (c1 - l21 * c2) / l11
+            c0 = (c0 - l10 * c1 - l20 * c2) / l00
+            ws[o_k + j] = c0
+            ws[o_k + n + j] = c1
+            ws[o_k + 2 * n + j] = c2
+            x_out[j] = x[j] + c0 * y0 + c1 * y1 + c2 * y2
+    else:
+        for i in range(m):  # K^T = L^-1 G (forward substitution on the rows of G) ...
+            ki = o_k + i * n
+            for j in range(n):
+                t = ws[o_g + i * n + j]
+                for p in range(i):
+                    t -= ws[o_l + i * m + p] * ws[o_k + p * n + j]
+                ws[ki + j] = t / ws[o_l + i * m + i]
+        for i in range(m - 1, -1, -1):  # ... then L^-T (backward substitution)
+            ki = o_k + i * n
+            for j in range(n):
+                t = ws[ki + j]
+                for p in range(i + 1, m):
+                    t -= ws[o_l + p * m + i] * ws[o_k + p * n + j]
+                ws[ki + j] = t / ws[o_l + i * m + i]
+        for i in range(n):
+            t = x[i]
+            for r in range(m):
+                t += ws[o_k + r * n + i] * ws[r]
+            x_out[i] = t
     # T = (I - K H) P = P - K G, W = K R - T H^T and P_out = T (I - K H)^T + K R K^T
     # = T + W K^T. Row i of W needs only row i of T, and row i of the result only row i of
     # T and of W, so for m = 2, 3 (the usual sensor block) the three go row by row with K's
