@@ -71,7 +71,6 @@ _ND = np.ndarray
 _INF = math.inf
 _F64 = np.float64
 _new = object.__new__
-_tuple_new = tuple.__new__
 
 
 def eye(n: int) -> np.ndarray:
