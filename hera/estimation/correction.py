@@ -71,8 +71,6 @@ _ND = np.ndarray
 _INF = math.inf
 _F64 = np.float64
 _new = object.__new__
-_tuple_new = tuple.__new__
-_set_outcomes = UpdateResult.outcomes.__set__  # type: ignore[attr-defined]
 
 
 def eye(n: int) -> np.ndarray:
@@ -613,16 +611,15 @@ class LinearisedFilter(FilterState):
                         H = np.asarray(H, dtype=np.float64).reshape(m, -1)
                     z, flags = b.z, b.kflags | _MODE_HX
                 thr = _INF if gate is None else gate_threshold(gate, m)
-                n = self.n
-                x_out = _empty(n)
-                P_out = _empty((n, n))
+                x_out = _empty(self.n)
+                P_out = _empty(self._nn)
                 try:
                     nis = k.lin_update1(
                         x, self._P, H, z, hx, b.noise, thr, flags | self._jflag, SCRATCH[0],
                         x_out, P_out,
                     )  # fmt: skip
                     if nis == _WS_SMALL:
-                        ws = grow_scratch(2 * m + 2 * m * m + 3 * n * m)
+                        ws = grow_scratch(2 * m + 2 * m * m + 3 * self.n * m)
                         nis = k.lin_update1(
                             x, self._P, H, z, hx, b.noise, thr, flags | self._jflag, ws,
                             x_out, P_out,
@@ -630,15 +627,16 @@ class LinearisedFilter(FilterState):
                 except TypeError:  # e.g. an integer Jacobian or h(x): numpy converts it
                     nis = -1.0
                 if nis >= 0.0:  # else a status code: the numpy path below decides
-                    # The result built in place (tuple.__new__: no call layers).
+                    # results.single_result written out (no call layer; the outcome is
+                    # built when read).
                     res = _new(UpdateResult)
                     if nis > thr:  # gated out: the state stays as it is
-                        _set_outcomes(
-                            res, [_tuple_new(BlockOutcome, (b.label, m, nis, False, thr))]
-                        )
+                        res._one = (b.label, m, nis, False, thr)
+                        res._outcomes = None
                         return res
                     t = None if gate is None else thr
-                    _set_outcomes(res, [_tuple_new(BlockOutcome, (b.label, m, nis, True, t))])
+                    res._one = (b.label, m, nis, True, t)
+                    res._outcomes = None
                     self._x = self.x_post = x_out
                     self._P = self.P_post = P_out
                     if self.history is not None:

@@ -22,8 +22,6 @@ from .correction import (
     LinearisedFilter,
     _kernel_inputs,
     _new,
-    _set_outcomes,
-    _tuple_new,
     as_blocks,
     check_dt,
     process_noise,
@@ -31,7 +29,7 @@ from .correction import (
 from .gating import gate_threshold
 from .numerics import finite, numerical_jacobian
 from .observations import Block, Observations
-from .results import BlockOutcome, UpdateResult
+from .results import UpdateResult
 from .stacking import SCRATCH, grow_scratch
 
 __all__ = ["ExtendedKalmanFilter"]
@@ -115,12 +113,11 @@ class ExtendedKalmanFilter(LinearisedFilter):
         if k is not None and type(xn) is _ND:
             # The kernel checks every shape and that f(x) is finite, numba's dispatch every
             # dtype and rank.
-            n = self.n
-            P = _empty((n, n))
+            P = _empty(self._nn)
             try:
                 status = k.ekf_predict(xn, self._P, Fj, Qm, SCRATCH[0], P)
                 if status == _WS_SMALL:
-                    status = k.ekf_predict(xn, self._P, Fj, Qm, grow_scratch(n * n), P)
+                    status = k.ekf_predict(xn, self._P, Fj, Qm, grow_scratch(self.n**2), P)
             except TypeError:  # e.g. an integer Jacobian: the numpy path converts it
                 status = -1
             if not status:
@@ -217,9 +214,9 @@ class ExtendedKalmanFilter(LinearisedFilter):
             return self.update(blocks, gate)
         thr = _INF if gate is None else gate_threshold(gate, m)
         n = self.n
-        P_prior = _empty((n, n))
+        P_prior = _empty(self._nn)
         x_out = _empty(n)
-        P_out = _empty((n, n))
+        P_out = _empty(self._nn)
         flags |= self._jflag
         P = self._P
         noise = b.noise
@@ -245,10 +242,12 @@ class ExtendedKalmanFilter(LinearisedFilter):
             return self.update(blocks, gate)
         res = _new(UpdateResult)
         if nis > thr:
-            _set_outcomes(res, [_tuple_new(BlockOutcome, (b.label, m, nis, False, thr))])
+            res._one = (b.label, m, nis, False, thr)
+            res._outcomes = None
             return res
         t = None if gate is None else thr
-        _set_outcomes(res, [_tuple_new(BlockOutcome, (b.label, m, nis, True, t))])
+        res._one = (b.label, m, nis, True, t)
+        res._outcomes = None
         self._x = self.x_post = x_out
         self._P = self.P_post = P_out
         if self.history is not None:
@@ -259,7 +258,7 @@ class ExtendedKalmanFilter(LinearisedFilter):
         """The predict from already evaluated f(x), F and Q (kernel, else numpy)."""
         if k is not None and type(xn) is _ND:
             n = self.n
-            P = _empty((n, n))
+            P = _empty(self._nn)
             try:
                 status = k.ekf_predict(xn, self._P, Fj, Qm, grow_scratch(n * n), P)
             except TypeError:

@@ -19,8 +19,6 @@ from .correction import (
     LinearisedFilter,
     _as_matrix,
     _new,
-    _set_outcomes,
-    _tuple_new,
     as_blocks,
     check_dt,
     process_noise,
@@ -28,7 +26,7 @@ from .correction import (
 from .gating import gate_threshold
 from .numerics import finite
 from .observations import Block, Observations
-from .results import BlockOutcome, UpdateResult
+from .results import UpdateResult
 from .stacking import SCRATCH, grow_scratch
 
 __all__ = ["KalmanFilter"]
@@ -245,9 +243,9 @@ class KalmanFilter(LinearisedFilter):
         thr = _INF if gate is None else gate_threshold(gate, m)
         n = self.n
         x_prior = _empty(n)
-        P_prior = _empty((n, n))
+        P_prior = _empty(self._nn)
         x_out = _empty(n)
-        P_out = _empty((n, n))
+        P_out = _empty(self._nn)
         flags = b.kflags | self._jflag
         H, z, noise, P = b.H, b.z, b.noise, self._P
         try:
@@ -271,9 +269,11 @@ class KalmanFilter(LinearisedFilter):
             return self.update(blocks, gate)
         res = _new(UpdateResult)
         if nis > thr:
-            _set_outcomes(res, [_tuple_new(BlockOutcome, (b.label, m, nis, False, thr))])
+            res._one = (b.label, m, nis, False, thr)
+            res._outcomes = None
             return res
         t = None if gate is None else thr
-        _set_outcomes(res, [_tuple_new(BlockOutcome, (b.label, m, nis, True, t))])
+        res._one = (b.label, m, nis, True, t)
+        res._outcomes = None
         self._commit_update(x_out, P_out, res)
         return res

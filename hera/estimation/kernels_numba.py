@@ -167,19 +167,46 @@ def _predict_cov(P, F, Q, ws, P_out, bad):
     """P_out = F P F^T + Q (upper triangle, mirrored: exactly symmetric), F P kept in
     ws[:n * n]; returns ``bad`` plus P_out * 0 (NaN iff an entry is not finite). Both
     products as dot products accumulated in registers (faster here than row updates in
-    memory); inlined into each predict kernel, a call passing arrays costs more than the
+    memory), two entries at a time so that two independent sums are in flight (each still
+    summed left to right: the same result to the bit; about 20 % faster at n = 9);
+    inlined into each predict kernel, a call passing arrays costs more than the
     arithmetic at n <= 9."""
     n = P.shape[0]
-    for i in range(n):
+    for i in range(n):  # F P
         o = i * n
-        for j in range(n):
+        j = 0
+        while j + 1 < n:
+            t = 0.0
+            s = 0.0
+            for k in range(n):
+                f = F[i, k]
+                t += f * P[k, j]
+                s += f * P[k, j + 1]
+            ws[o + j] = t
+            ws[o + j + 1] = s
+            j += 2
+        if j < n:
             t = 0.0
             for k in range(n):
                 t += F[i, k] * P[k, j]
             ws[o + j] = t
     for i in range(n):
         o = i * n
-        for j in range(i, n):
+        j = i
+        while j + 1 < n:  # (F P) F^T + Q, row i from its diagonal on
+            v = Q[i, j]
+            u = Q[i, j + 1]
+            for k in range(n):
+                w = ws[o + k]
+                v += w * F[j, k]
+                u += w * F[j + 1, k]
+            bad += v * 0.0 + u * 0.0
+            P_out[i, j] = v
+            P_out[j, i] = v
+            P_out[i, j + 1] = u
+            P_out[j + 1, i] = u
+            j += 2
+        if j < n:
             v = Q[i, j]
             for k in range(n):
                 v += ws[o + k] * F[j, k]
@@ -297,7 +324,20 @@ def _update_row(x, P, H, z, hx, r, thr, flags, ws, x_out, P_out):
     else:
         y = z[0]
     s = r
-    for j in range(n):  # g = h P, s = g h^T + r
+    j = 0
+    while j + 1 < n:  # g = h P (two entries at a time as in _predict_cov), s = g h^T + r
+        t = 0.0
+        u = 0.0
+        for k in range(n):
+            h = H[0, k]
+            t += h * P[k, j]
+            u += h * P[k, j + 1]
+        ws[j] = t
+        ws[j + 1] = u
+        s += t * H[0, j]
+        s += u * H[0, j + 1]
+        j += 2
+    if j < n:
         t = 0.0
         for k in range(n):
             t += H[0, k] * P[k, j]
@@ -380,9 +420,20 @@ def _update_block(x, P, H, z, hx, noise, thr, flags, ws, x_out, P_out):
             v = z[r]
         bad += v * 0.0
         ws[r] = v
-    for r in range(m):  # G = H P
+    for r in range(m):  # G = H P, two entries at a time as in _predict_cov
         g = o_g + r * n
-        for j in range(n):
+        j = 0
+        while j + 1 < n:
+            t = 0.0
+            s = 0.0
+            for k in range(n):
+                h = H[r, k]
+                t += h * P[k, j]
+                s += h * P[k, j + 1]
+            ws[g + j] = t
+            ws[g + j + 1] = s
+            j += 2
+        if j < n:
             t = 0.0
             for k in range(n):
                 t += H[r, k] * P[k, j]
@@ -425,51 +476,160 @@ def _update_block(x, P, H, z, hx, noise, thr, flags, ws, x_out, P_out):
         nis += t * t
     if not nis <= thr:
         return nis
-    for i in range(m):  # K^T = L^-1 G (forward substitution on the rows of G) ...
-        ki = o_k + i * n
+    # K^T = L^-T L^-1 G by forward then backward substitution, and x_out = x + K y. For
+    # m = 2, 3 column by column of K^T with L's entries in registers, each column's two
+    # substitutions and x_out's entry together: the same operations in the same order as
+    # the general loops (the same result to the bit), a third of their time at n = 9.
+    if m == 2:
+        l00 = ws[o_l]
+        l10 = ws[o_l + 2]
+        l11 = ws[o_l + 3]
+        y0 = ws[0]
+        y1 = ws[1]
         for j in range(n):
-            t = ws[o_g + i * n + j]
-            for p in range(i):
-                t -= ws[o_l + i * m + p] * ws[o_k + p * n + j]
-            ws[ki + j] = t / ws[o_l + i * m + i]
-    for i in range(m - 1, -1, -1):  # ... then L^-T (backward substitution)
-        ki = o_k + i * n
+            c0 = ws[o_g + j] / l00
+            c1 = (ws[o_g + n + j] - l10 * c0) / l11
+            c1 = c1 / l11
+            c0 = (c0 - l10 * c1) / l00
+            ws[o_k + j] = c0
+            ws[o_k + n + j] = c1
+            x_out[j] = x[j] + c0 * y0 + c1 * y1
+    elif m == 3:
+        l00 = ws[o_l]
+        l10 = ws[o_l + 3]
+        l11 = ws[o_l + 4]
+        l20 = ws[o_l + 6]
+        l21 = ws[o_l + 7]
+        l22 = ws[o_l + 8]
+        y0 = ws[0]
+        y1 = ws[1]
+        y2 = ws[2]
         for j in range(n):
-            t = ws[ki + j]
-            for p in range(i + 1, m):
-                t -= ws[o_l + p * m + i] * ws[o_k + p * n + j]
-            ws[ki + j] = t / ws[o_l + i * m + i]
-    for i in range(n):
-        t = x[i]
-        for r in range(m):
-            t += ws[o_k + r * n + i] * ws[r]
-        x_out[i] = t
-    for i in range(n):  # T = (I - K H) P = P - K G, into P_out (row by row)
-        for j in range(n):
-            P_out[i, j] = P[i, j]
-        for r in range(m):
-            kv = ws[o_k + r * n + i]
-            g = o_g + r * n
+            c0 = ws[o_g + j] / l00
+            c1 = (ws[o_g + n + j] - l10 * c0) / l11
+            c2 = (ws[o_g + 2 * n + j] - l20 * c0 - l21 * c1) / l22
+            c2 = c2 / l22
+            c1 = (c1 - l21 * c2) / l11
+            c0 = (c0 - l10 * c1 - l20 * c2) / l00
+            ws[o_k + j] = c0
+            ws[o_k + n + j] = c1
+            ws[o_k + 2 * n + j] = c2
+            x_out[j] = x[j] + c0 * y0 + c1 * y1 + c2 * y2
+    else:
+        for i in range(m):  # K^T = L^-1 G (forward substitution on the rows of G) ...
+            ki = o_k + i * n
             for j in range(n):
-                P_out[i, j] -= kv * ws[g + j]
-    if flags & JOSEPH:
-        for i in range(n):  # W = K R - T H^T
-            for c in range(m):
-                if diag:
-                    t = ws[o_k + c * n + i] * noise[c]
-                else:
-                    t = 0.0
-                    for r in range(m):
-                        t += ws[o_k + r * n + i] * noise[r * m + c]
-                for q in range(n):
-                    t -= P_out[i, q] * H[c, q]
-                ws[o_v + i * m + c] = t
-        for i in range(n):  # P_out = T (I - K H)^T + K R K^T = T + W K^T (row by row)
-            for c in range(m):
-                wv = ws[o_v + i * m + c]
-                kc = o_k + c * n
+                t = ws[o_g + i * n + j]
+                for p in range(i):
+                    t -= ws[o_l + i * m + p] * ws[o_k + p * n + j]
+                ws[ki + j] = t / ws[o_l + i * m + i]
+        for i in range(m - 1, -1, -1):  # ... then L^-T (backward substitution)
+            ki = o_k + i * n
+            for j in range(n):
+                t = ws[ki + j]
+                for p in range(i + 1, m):
+                    t -= ws[o_l + p * m + i] * ws[o_k + p * n + j]
+                ws[ki + j] = t / ws[o_l + i * m + i]
+        for i in range(n):
+            t = x[i]
+            for r in range(m):
+                t += ws[o_k + r * n + i] * ws[r]
+            x_out[i] = t
+    # T = (I - K H) P = P - K G, W = K R - T H^T and P_out = T (I - K H)^T + K R K^T
+    # = T + W K^T. Row i of W needs only row i of T, and row i of the result only row i of
+    # T and of W, so for m = 2, 3 (the usual sensor block) the three go row by row with K's
+    # and W's entries in registers: every sum as in the general loops, term by term in the
+    # same order (the same result to the bit), about 15 % faster at n = 9.
+    joseph = (flags & JOSEPH) != 0
+    if m == 2:
+        k0 = o_k
+        k1 = o_k + n
+        g0 = o_g
+        g1 = o_g + n
+        for i in range(n):
+            a0 = ws[k0 + i]
+            a1 = ws[k1 + i]
+            if diag:
+                w0 = a0 * noise[0]
+                w1 = a1 * noise[1]
+            else:
+                w0 = 0.0 + a0 * noise[0] + a1 * noise[2]
+                w1 = 0.0 + a0 * noise[1] + a1 * noise[3]
+            for q in range(n):  # row i of T = P - K G, and W = K R - T H^T
+                t = P[i, q]
+                t -= a0 * ws[g0 + q]
+                t -= a1 * ws[g1 + q]
+                P_out[i, q] = t
+                w0 -= t * H[0, q]
+                w1 -= t * H[1, q]
+            if joseph:  # row i of T + W K^T
                 for j in range(n):
-                    P_out[i, j] += wv * ws[kc + j]
+                    t = P_out[i, j]
+                    t += w0 * ws[k0 + j]
+                    t += w1 * ws[k1 + j]
+                    P_out[i, j] = t
+    elif m == 3:
+        k0 = o_k
+        k1 = o_k + n
+        k2 = o_k + 2 * n
+        g0 = o_g
+        g1 = o_g + n
+        g2 = o_g + 2 * n
+        for i in range(n):
+            a0 = ws[k0 + i]
+            a1 = ws[k1 + i]
+            a2 = ws[k2 + i]
+            if diag:
+                w0 = a0 * noise[0]
+                w1 = a1 * noise[1]
+                w2 = a2 * noise[2]
+            else:
+                w0 = 0.0 + a0 * noise[0] + a1 * noise[3] + a2 * noise[6]
+                w1 = 0.0 + a0 * noise[1] + a1 * noise[4] + a2 * noise[7]
+                w2 = 0.0 + a0 * noise[2] + a1 * noise[5] + a2 * noise[8]
+            for q in range(n):
+                t = P[i, q]
+                t -= a0 * ws[g0 + q]
+                t -= a1 * ws[g1 + q]
+                t -= a2 * ws[g2 + q]
+                P_out[i, q] = t
+                w0 -= t * H[0, q]
+                w1 -= t * H[1, q]
+                w2 -= t * H[2, q]
+            if joseph:
+                for j in range(n):
+                    t = P_out[i, j]
+                    t += w0 * ws[k0 + j]
+                    t += w1 * ws[k1 + j]
+                    t += w2 * ws[k2 + j]
+                    P_out[i, j] = t
+    else:
+        for i in range(n):  # T = (I - K H) P = P - K G, into P_out (row by row)
+            for j in range(n):
+                P_out[i, j] = P[i, j]
+            for r in range(m):
+                kv = ws[o_k + r * n + i]
+                g = o_g + r * n
+                for j in range(n):
+                    P_out[i, j] -= kv * ws[g + j]
+        if flags & JOSEPH:
+            for i in range(n):  # W = K R - T H^T
+                for c in range(m):
+                    if diag:
+                        t = ws[o_k + c * n + i] * noise[c]
+                    else:
+                        t = 0.0
+                        for r in range(m):
+                            t += ws[o_k + r * n + i] * noise[r * m + c]
+                    for q in range(n):
+                        t -= P_out[i, q] * H[c, q]
+                    ws[o_v + i * m + c] = t
+            for i in range(n):  # P_out = T (I - K H)^T + K R K^T = T + W K^T (row by row)
+                for c in range(m):
+                    wv = ws[o_v + i * m + c]
+                    kc = o_k + c * n
+                    for j in range(n):
+                        P_out[i, j] += wv * ws[kc + j]
     for i in range(n):  # symmetrise, (P + P^T) / 2 as on the numpy path
         bad += x_out[i] * 0.0
         for j in range(i + 1, n):

@@ -64,7 +64,7 @@ def _noise(label: str, R: Any, m: int) -> tuple[np.ndarray | None, np.ndarray | 
     if isinstance(R, float | int):
         if not 0.0 < R < _INF:
             raise _bad_variance(label, float(R))
-        return (np.full(m, float(R)) if m > 1 else np.array((float(R),))), None
+        return np.array((float(R),) * m), None  # float64; cheaper than np.full
     try:
         Rm = R if type(R) is _ND and R.dtype is _F64T else np.asarray(R, dtype=_F64)
     except (TypeError, ValueError):
@@ -175,6 +175,10 @@ class Block:
         return f"Block({self.label!r}, dim={self.dim}, {kind})"
 
 
+_new = object.__new__
+_block_init = Block.__init__
+
+
 class Observations:
     """An ordered, variadic set of observation blocks for one filter step (thesis listing
     4.1). ``add`` returns self so calls chain; an empty set means predict only."""
@@ -204,7 +208,9 @@ class Observations:
         (e.g. ``circular_mean`` for angles; default ``Wm @ Y``). ``vectorized=True``
         promises that ``h`` (and ``residual``) also accept a batch of N rows: h maps
         (N, n) states to (N, m), residual (N, m) and (m,) to (N, m) (used by the UKF)."""
-        self.blocks.append(Block(label, z, R, H, h, jacobian, residual, vectorized, mean))
+        b = _new(Block)  # Block(...) without type.__call__'s layer: this runs every step
+        _block_init(b, label, z, R, H, h, jacobian, residual, vectorized, mean)
+        self.blocks.append(b)
         return self
 
     def append(self, block: Block) -> Observations:

@@ -66,6 +66,7 @@ class FilterState:
         active_kernels()  # resolve the backend now: the steps read backend._active directly
         x = state_vector(x0, None, "x0")
         self.n = x.shape[0]
+        self._nn = (self.n, self.n)  # the shape of P, for the steps' np.empty
         self._P = as_covariance(P0, self.n, "P0", semidefinite=True)
         self._x = x
         self.x_prior = self.x_post = x
