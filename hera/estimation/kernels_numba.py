@@ -163,6 +163,32 @@ def _square(A, n):
     return A.shape[0] == n and A.shape[1] == n
 
 
+def _row_times(A, i, P, ws, o):
+    """ws[o + j] = (A P)[i, j] for every column j of P: row i of A times P, as dot products
+    two entries at a time so that two independent sums are in flight (each still summed
+    left to right: the same result to the bit). Inlined where it is used."""
+    n = P.shape[0]
+    j = 0
+    while j + 1 < n:
+        t = 0.0
+        s = 0.0
+        for k in range(n):
+            a = A[i, k]
+            t += a * P[k, j]
+            s += a * P[k, j + 1]
+        ws[o + j] = t
+        ws[o + j + 1] = s
+        j += 2
+    if j < n:
+        t = 0.0
+        for k in range(n):
+            t += A[i, k] * P[k, j]
+        ws[o + j] = t
+
+
+_row_times = numba.njit(cache=True, error_model="numpy", inline="always")(_row_times)
+
+
 def _predict_cov(P, F, Q, ws, P_out, bad):
     """P_out = F P F^T + Q (upper triangle, mirrored: exactly symmetric), F P kept in
     ws[:n * n]; returns ``bad`` plus P_out * 0 (NaN iff an entry is not finite). Both
@@ -173,23 +199,7 @@ def _predict_cov(P, F, Q, ws, P_out, bad):
     arithmetic at n <= 9."""
     n = P.shape[0]
     for i in range(n):  # F P
-        o = i * n
-        j = 0
-        while j + 1 < n:
-            t = 0.0
-            s = 0.0
-            for k in range(n):
-                f = F[i, k]
-                t += f * P[k, j]
-                s += f * P[k, j + 1]
-            ws[o + j] = t
-            ws[o + j + 1] = s
-            j += 2
-        if j < n:
-            t = 0.0
-            for k in range(n):
-                t += F[i, k] * P[k, j]
-            ws[o + j] = t
+        _row_times(F, i, P, ws, i * n)
     for i in range(n):
         o = i * n
         j = i
@@ -420,24 +430,8 @@ def _update_block(x, P, H, z, hx, noise, thr, flags, ws, x_out, P_out):
             v = z[r]
         bad += v * 0.0
         ws[r] = v
-    for r in range(m):  # G = H P, two entries at a time as in _predict_cov
-        g = o_g + r * n
-        j = 0
-        while j + 1 < n:
-            t = 0.0
-            s = 0.0
-            for k in range(n):
-                h = H[r, k]
-                t += h * P[k, j]
-                s += h * P[k, j + 1]
-            ws[g + j] = t
-            ws[g + j + 1] = s
-            j += 2
-        if j < n:
-            t = 0.0
-            for k in range(n):
-                t += H[r, k] * P[k, j]
-            ws[g + j] = t
+    for r in range(m):  # G = H P
+        _row_times(H, r, P, ws, o_g + r * n)
     for r in range(m):  # S = G H^T + R
         g = o_g + r * n
         for c in range(m):
