@@ -122,10 +122,8 @@ class Node:
         self.halt = threading.Event()
         self.exit_code = 0
         self.started_at = time.time()
-        self.phase = 0.0
-        """The grid its workers' deadlines share (timer coalescing, :mod:`hera.worker`):
-        multiples of each period on the machine's monotonic clock, one grid for every node
-        of a machine."""
+        self.phase = time.monotonic()
+        """The grid its workers' deadlines share (timer coalescing, :mod:`hera.worker`)."""
         self._factories = services
         self.services: dict[str, NodeService] = {}
         self._handles: list[Any] = []

@@ -5,14 +5,12 @@ original slept a relative ``timeout`` and drifted). A step that starts late is c
 the jitter figures; deadlines missed entirely are skipped and counted as overruns, never
 run in a burst.
 
-Timer coalescing: a worker given a ``phase`` (a monotonic instant; nodes give 0.0, so
-every node of a machine shares one grid, ``CLOCK_MONOTONIC`` being machine-wide) runs its
-first step at once, as any worker, and its later steps on the grid ``phase + j * period``,
-the first of them at least half a period after that first step. The measures that share a
-period then wake together, on a node and across the nodes of a machine, and their samples
-leave in batches: the 5-node observer cluster (``hera bench bus``, fresh venv) cost
-11.2 % of a core with a grid per node and 6.8-9.6 % (4 runs) with one grid per machine,
-against 14.8-15.6 % without coalescing.
+Timer coalescing: a worker given a ``phase`` (a monotonic instant its node shares with all
+its workers) runs its first step at once, as any worker, and its later steps on the grid
+``phase + j * period``, the first of them at least half a period after that first step.
+The measures of a node that share a period then wake together and their samples leave in
+one batch: a quiet node wakes once per period instead of once per measure, which on
+loopback cut the 5-node observer cluster's CPU by about a quarter (``hera bench bus``).
 
 The worker publishes what the measure returns through the node's ``publish`` function and
 reports its exit (normal or with the exception) to its supervisor.
