@@ -127,6 +127,13 @@ class MeasureSpec:
     period: float | None = setting(
         None, number(above=0), "seconds between deadlines (absolute schedule); default: the class's"
     )
+    offset: float | None = setting(
+        None,
+        number(minimum=0),
+        "seconds after each multiple of the period on the wall clock (epoch time) at which the "
+        "steps fall, so measures of several nodes take turns (clocks in step: one host, or NTP);"
+        " default: the node's own grid",
+    )
     iterations: int | str | None = setting(
         None,
         either(number(minimum=1, integer=True), choice("forever")),
@@ -165,6 +172,14 @@ class MeasureSpec:
                 s.kind.convert(value)
             except ValueError as e:
                 raise ValueError(f"{where}: {s.key} {e}, got {value!r}") from None
+        if self.offset is not None:
+            if self.sync:
+                raise ValueError(f"{where}: offset is for unsynchronised measures (sync = true)")
+            if self.period is not None and self.offset >= self.period:
+                raise ValueError(
+                    f"{where}: offset must be below the period ({self.period:g} s), "
+                    f"got {self.offset!r}"
+                )
 
     @property
     def group(self) -> str:

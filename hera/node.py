@@ -36,6 +36,7 @@ from typing import Any
 
 import zenoh
 
+from hera import wallclock
 from hera.args import ArgsStore
 from hera.bus import BusConfig, open_session, with_overrides
 from hera.control import EXIT_INJECTED_CRASH, ControlPlane
@@ -55,7 +56,7 @@ from hera.spec import ClusterSpec
 from hera.store import Store
 from hera.supervisor import Child, Supervisor
 from hera.topology import bus_config
-from hera.worker import Worker
+from hera.worker import Worker, wall_grid
 
 freeze_runtime()  # what is loaded now is the runtime's: a hot reload never replaces it
 log = logging.getLogger("hera.node")
@@ -299,11 +300,19 @@ class Node:
                 halt=self.halt,
                 args_source=lambda: self.measure_args(cls, decl),
                 gate=gate,
-                # sync measures keep their own phase: their steps wait for slots anyway
-                phase=None if spec.sync else self.phase,
+                phase=self._phase_of(spec),
             )
 
         return make
+
+    def _phase_of(self, spec: MeasureSpec) -> float | None:
+        """The grid of a measure's steps: the wall-clock grid of its ``offset``, else the
+        node's own (sync measures keep their own phase: their steps wait for slots)."""
+        if spec.sync:
+            return None
+        if spec.offset is not None:
+            return wall_grid(spec.offset, float(spec.period), wallclock.now(), time.monotonic())
+        return self.phase
 
     def _columns(self) -> dict[str, tuple[str, ...]]:
         """Output columns of every measure of the spec (for the CSV sidecars)."""

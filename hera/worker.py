@@ -5,6 +5,12 @@ original slept a relative ``timeout`` and drifted). A step that starts late is c
 the jitter figures; deadlines missed entirely are skipped and counted as overruns, never
 run in a burst.
 
+A measure given an ``offset`` in the spec gets the phase of a wall-clock grid instead
+(:func:`wall_grid`): its steps fall ``offset`` seconds past each multiple of the period in
+epoch time, on every node alike, so sensors of several nodes can take turns (three 10 Hz
+range sensors at offsets 0, 1/30, 2/30 s give a fusion a reading every 33 ms rather than
+three at once every 100 ms).
+
 Timer coalescing: a worker given a ``phase`` (a monotonic instant its node shares with all
 its workers) runs its first step at once, as any worker, and its later steps on the grid
 ``phase + j * period``, the first of them at least half a period after that first step.
@@ -75,6 +81,13 @@ class WorkerStats:
 def on_grid(phase: float, period: float, t: float) -> float:
     """The first instant ``phase + j * period`` (integer j) at or after ``t`` (seconds)."""
     return phase + math.ceil((t - phase) / period) * period
+
+
+def wall_grid(offset: float, period: float, wall: float, mono: float) -> float:
+    """A monotonic instant at which the wall clock reads ``offset`` past a multiple of
+    ``period`` (seconds), from one reading of both clocks (``wall`` epoch, ``mono``
+    monotonic): the ``phase`` of a grid that workers of other processes and hosts share."""
+    return mono - (wall - offset) % period
 
 
 PublishFn = Callable[[str, Reading, Any], None]

@@ -1,8 +1,12 @@
 """deploy/imu6dof.toml as a real cluster: the sonars' position (ours and e10), the 6-DOF IMU
 aided by it (e13) and unaided, with a sonar node SIGKILLed mid-run (issue 11).
 
-One run of about 35 s is shared by the tests of this module: 14 s undisturbed, then
-``sonar_z`` is SIGKILLed; the launcher restarts it; 8 s more. Asserted against the truth,
+One run of about 37 s is shared by the tests of this module: 14 s undisturbed, then
+``sonar_z`` hangs (SIGSTOP) for 10 position estimates (about 0.75 s: the two other
+sonars still update) and is SIGKILLed; the launcher restarts it; 8 s more. The hang makes
+the loss long enough to be judged whatever the restart speed (a bare SIGKILL leaves the
+sonar silent for 0.3-0.9 s, a handful of estimates): about 1.5 s in all, as the offline
+sonar-loss test. Asserted against the truth,
 on both nodes that run each model: our position RMSE <= 2 cm before the kill; while the
 sonar is gone, the two observed axes within 3 cm (RMS) and the lost axis's reported
 standard deviation growing; 2 s after the sonar's return, the position and the standard
@@ -32,7 +36,7 @@ E13_NODES = ("computer", "nav_1")
 
 @pytest.fixture(scope="module")
 def killed_run(tmp_path_factory):
-    """(run directory, epoch time of the kill)."""
+    """(run directory, epoch time of the hang, epoch time of the kill)."""
     tmp = tmp_path_factory.mktemp("imu6dof")
     spec = tmp / "imu6dof.toml"
     spec.write_text((ROOT / "deploy" / "imu6dof.toml").read_text())
@@ -44,7 +48,11 @@ def killed_run(tmp_path_factory):
             return c.status("computer")["measures"]["position3d"]["published"]
 
         wait_for(lambda: published() > 280, 90, "14 s of position estimates")
-        victim = c.pid("sonar_z")  # asked first: the kill follows the clock read at once
+        victim = c.pid("sonar_z")  # asked first: the signal follows the clock read at once
+        t_stop = time.time()
+        os.kill(victim, signal.SIGSTOP)
+        hung = published()
+        wait_for(lambda: published() >= hung + 10, 15, "10 estimates without sonar_z")
         t_kill = time.time()
         os.kill(victim, signal.SIGKILL)
         wait_for(lambda: c.launcher_state()["sonar_z"]["restarts"] == 1, 15, "sonar_z restarted")
@@ -58,18 +66,18 @@ def killed_run(tmp_path_factory):
         wait_for(lambda: published() > back + 240, 40, "8 s more of position estimates")
     finally:
         c.stop()
-    return c.run_dir, t_kill
+    return c.run_dir, t_stop, t_kill
 
 
-def _windows(run: Path, t_kill: float) -> tuple[float, float]:
-    """(kill, return): return is sonar_z's first reading after the longest silence around
-    the kill (a reading taken between the clock read and the signal's delivery is stamped
-    after ``t_kill`` and must not count as the return)."""
+def _windows(run: Path, t_stop: float) -> tuple[float, float]:
+    """(loss, return): return is sonar_z's first reading after the longest silence around
+    the hang (a reading taken between the clock read and the signal's delivery is stamped
+    after ``t_stop`` and must not count as the return)."""
     z = sorted(
-        s.t for s in read_recordings(run, ["sonar"]) if s.node == "sonar_z" and s.t > t_kill - 1.0
+        s.t for s in read_recordings(run, ["sonar"]) if s.node == "sonar_z" and s.t > t_stop - 1.0
     )
     i = int(np.argmax(np.diff(z)))
-    return t_kill, z[i + 1]
+    return t_stop, z[i + 1]
 
 
 def _rmse_cm(err: np.ndarray) -> float:
@@ -77,15 +85,16 @@ def _rmse_cm(err: np.ndarray) -> float:
 
 
 def test_the_node_came_back_within_seconds(killed_run):
-    run, t_kill = killed_run
-    kill, back = _windows(run, t_kill)
-    print(f"sonar_z gone for {back - kill:.2f} s")  # pytest -s: the README's figures
-    assert 0.2 < back - kill < 3.0, back - kill
+    run, t_stop, t_kill = killed_run
+    _, back = _windows(run, t_stop)
+    # pytest -s: the README's figures
+    print(f"sonar_z gone for {back - t_stop:.2f} s, back {back - t_kill:.2f} s after the kill")
+    assert 0.2 < back - t_kill < 3.0, back - t_kill
 
 
 def test_position_meets_its_targets_through_the_loss_of_a_sonar(killed_run):
-    run, t_kill = killed_run
-    kill, back = _windows(run, t_kill)
+    run, t_stop, _ = killed_run
+    kill, back = _windows(run, t_stop)
     truth = position_truth(run_spec(run).world)
     seen = 0
     for s in load_outputs(run):
@@ -100,7 +109,7 @@ def test_position_meets_its_targets_through_the_loss_of_a_sonar(killed_run):
         before = settled & (t < kill)
         gone = (t >= kill) & (t < back)
         after = (t >= back + 2.0) & (t < back + 10.0)
-        assert before.sum() > 180 and gone.sum() >= 5 and after.sum() > 80, s.node
+        assert before.sum() > 180 and gone.sum() >= 10 and after.sum() > 80, s.node
         assert _rmse_cm(err[before]) <= 2.0, (s.node, _rmse_cm(err[before]))
         observed = np.sqrt(np.mean(err[gone][:, :2] ** 2, axis=0))
         assert observed.max() <= 0.03, (s.node, observed)
@@ -118,8 +127,8 @@ def test_position_meets_its_targets_through_the_loss_of_a_sonar(killed_run):
 
 
 def test_e13_is_bounded_by_the_sonars_and_the_unaided_filter_drifts(killed_run):
-    run, t_kill = killed_run
-    kill, back = _windows(run, t_kill)
+    run, t_stop, _ = killed_run
+    kill, back = _windows(run, t_stop)
     res = by_model(evaluate(run))
     truth = position_truth(run_spec(run).world)
     for s in load_outputs(run):

@@ -1,7 +1,7 @@
 """2-D tilt end to end (seed 003) on a real 2-node cluster: deploy/tilt.toml, the IMU on the
 robot, the four filters on the robot and on a computer.
 
-One run (~36 s) is shared by the tests of this module: the gyroscope calibrated on the stand
+One run (~56 s) is shared by the tests of this module: the gyroscope calibrated on the stand
 at the start; an operator asks for a calibration while the robot balances (it must refuse to
 finish, and the filters carry on with the stored bias); the robot's node is killed and comes
 back with its calibration (no recalibration). Asserted: until the kill, the filters on
@@ -25,7 +25,7 @@ from hera.models.tilt.app import THETA, robot_truth, score_tilt
 from hera.recordings import read_csv
 
 ROOT = Path(__file__).resolve().parents[2]
-ASK_AT, KILL_AT, END_AT = 15.0, 22.0, 36.0  # s after the epoch
+ASK_AT, KILL_AT, END_AT = 15.0, 42.0, 56.0  # s after the epoch: pushes at 13, 23, 33 s
 
 
 @pytest.fixture(scope="module")
@@ -84,6 +84,7 @@ def test_the_filters_meet_the_targets_on_both_nodes(tilt_run):
         assert got["converge_s"] is not None and got["converge_s"] <= 1.0, (s.name, s.node, got)
         assert got["still_deg"] is not None and got["still_deg"] < 0.05, (s.name, s.node, got)
         assert got["push_deg"] <= 0.5 and got["rmse_deg"] <= 0.5, (s.name, s.node, got)
+        print(s.name, s.node, {k: round(v, 3) for k, v in got.items() if v is not None})
         late = s.t > facts["back_at"] + 3.0
         err = np.degrees(s.column("theta [rad]")[late] - [truth.at(t)[THETA] for t in s.t[late]])
         assert len(err) > 100 and float(np.sqrt(np.mean(err**2))) <= 1.0, (s.name, s.node)

@@ -26,8 +26,8 @@ def test_resolved_json_round_trips(tmp_path):
 BASE = {"cluster": {"name": "c"}, "nodes": [{"name": "a"}]}
 CHUNK = "must use only letters, digits, '_', '.' and '-' (no '/', '*', '$'), at most 64 of them"
 MEASURE_KEYS = (
-    "use, name, period, iterations, sync, sync_group, slot, restart, hang_factor, hang_min, "
-    "seed, args"
+    "use, name, period, offset, iterations, sync, sync_group, slot, restart, hang_factor, "
+    "hang_min, seed, args"
 )
 
 
@@ -77,6 +77,16 @@ MEASURE_KEYS = (
         (
             {"measures": [{"use": "counter", "period": -1}]},
             "s.toml: [[measures]] #1: period must be a number > 0, got -1",
+        ),
+        (
+            {"measures": [{"use": "counter", "period": 0.1, "offset": 0.1}]},
+            "s.toml: [[measures]] #1: measure 'counter': offset must be below the period "
+            "(0.1 s), got 0.1",
+        ),
+        (
+            {"measures": [{"use": "counter", "sync": True, "offset": 0.01}]},
+            "s.toml: [[measures]] #1: measure 'counter': offset is for unsynchronised "
+            "measures (sync = true)",
         ),
         (
             {"measures": [{"use": "counter", "restart": "sometimes"}]},

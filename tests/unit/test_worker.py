@@ -8,7 +8,7 @@ import time
 from nodes_helpers import make_ctx
 
 from hera.measure import Measure, Reading
-from hera.worker import Worker, on_grid
+from hera.worker import Worker, on_grid, wall_grid
 
 
 def start_worker(cls, period, iterations, args=None, phase=None):
@@ -138,3 +138,36 @@ def test_without_a_phase_a_worker_keeps_its_own_grid():
     _, pub = run_worker(Stamp, period, 6)
     offsets = grid_offsets([r.values[0] for r in pub][1:], phase, period)
     assert not all(off < period / 2 for off in offsets), offsets
+
+
+class WallStamp(Measure):
+    def measure(self):
+        return [time.time()]
+
+
+def test_wall_grid_is_the_monotonic_instant_of_the_wall_clocks_offset():
+    # wall 1000.25 s at monotonic 50 s: the wall clock read 1000.2 (0.2 s past the 0.5 s
+    # multiple 1000.0) 0.05 s before
+    assert abs(wall_grid(0.2, 0.5, 1000.25, 50.0) - 49.95) < 1e-9
+    assert abs(wall_grid(0.3, 0.5, 1000.25, 50.0) - 49.55) < 1e-9  # 999.8, 0.45 s before
+
+
+def test_workers_of_one_period_take_turns_at_their_wall_clock_offsets():
+    """Two workers (as on two nodes) with offsets 0 and half the period step on the wall
+    clock's grid, half a period apart, whenever each was started."""
+    period = 0.1
+    workers = []
+    for offset in (0.0, 0.05):
+        workers.append((offset, start_worker(WallStamp, period, 8, phase=_wall_phase(offset))))
+        time.sleep(0.013)  # started at unrelated instants
+    for offset, (_, pub, done) in workers:
+        assert done.wait(30)
+        stamps = [r.values[0] for r in pub][1:]  # the first step runs at once
+        late = [(t - offset) % period for t in stamps]
+        assert all(x < period / 2 for x in late), (offset, late)
+        other = [(t - (0.05 - offset)) % period for t in stamps]
+        assert not all(x < period / 2 for x in other), other  # the check tells them apart
+
+
+def _wall_phase(offset):
+    return wall_grid(offset, 0.1, time.time(), time.monotonic())
