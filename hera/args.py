@@ -68,6 +68,8 @@ class ArgsStore:
         self._path = Path(state_dir) / self.FILE if state_dir is not None else None
         self._lock = threading.Lock()
         self._save_lock = threading.Lock()  # one save at a time: the last one is the newest
+        self._pull_lock = threading.Lock()
+        self._pull_wanted = self._pulling = False  # see on_peer_up
         self._entries: dict[str, tuple[int, str, Any, bool]] = {}  # stamp, origin, value, deleted
         self._listeners: tuple[Callable[[str, Any, bool], None], ...] = ()
         self.rejected: dict[str, int] = {}
@@ -155,19 +157,31 @@ class ArgsStore:
     def on_peer_up(self, node: str) -> None:
         """A peer ``node`` came up (its liveliness token): ask every live peer for all
         entries again, on a thread of its own (never on the bus's callback thread), so what
-        either side wrote before their link existed is merged on both."""
+        either side wrote before their link existed is merged on both. Peers that come up
+        together share pulls: one runs at a time, and one more after it if a peer came up
+        meanwhile (every peer-up is followed by a pull that starts after it)."""
         if node == self.node or self._session is None:
             return
+        with self._pull_lock:
+            self._pull_wanted = True
+            if self._pulling:
+                return
+            self._pulling = True
+        threading.Thread(target=self._pull, name="args-pull", daemon=True).start()
 
-        def pull() -> None:
+    def _pull(self) -> None:
+        while True:
+            with self._pull_lock:
+                if not self._pull_wanted:
+                    self._pulling = False
+                    return
+                self._pull_wanted = False
             try:
                 got = self.recover(timeout=1.0)
                 if got:
-                    log.info("took %d args entries when %s came up", got, node)
+                    log.info("took %d args entries when a peer came up", got)
             except Exception as e:  # a closing session: the next start recovers anyway
-                log.debug("args pull after %s came up failed: %s", node, e)
-
-        threading.Thread(target=pull, name=f"args-pull-{node}", daemon=True).start()
+                log.debug("args pull after a peer came up failed: %s", e)
 
     @property
     def clock(self) -> int:

@@ -12,6 +12,7 @@ import contextlib
 import json
 import os
 import tempfile
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -79,8 +80,6 @@ def find_run_dir(run_dir: str | None, cluster: str | None) -> Path:
 
 def _open_retrying(cfg: BusConfig, retry_s: float) -> Any:
     """Open a session; a client that finds no router retries for ``retry_s`` seconds."""
-    import time
-
     deadline = time.monotonic() + retry_s
     while True:
         try:
@@ -207,8 +206,6 @@ class ClusterClient:
         session just opened sees until the node's declarations reach it (a tool's first
         query, or a node just restarted). A query the node received is never sent twice: it
         answers every query, so such a query ends with its reply or at the timeout."""
-        import time
-
         deadline = time.monotonic() + timeout
         while True:
             left = max(0.05, deadline - time.monotonic())

@@ -1,3 +1,4 @@
+import threading
 import time
 
 import pytest
@@ -129,3 +130,36 @@ def test_two_threads_saving_at_once_keep_both_keys_on_disk(tmp_path, monkeypatch
     first.join()
     monkeypatch.setattr(args_module.msgpack, "packb", real)
     assert ArgsStore("n1", state_dir=tmp_path).items() == {"calib/n1/nav": 1, "calib/n1/mag": 2}
+
+
+class _QuietSession:
+    """Stands in for a Zenoh session in a unit test of ArgsStore alone: declares nothing."""
+
+    def declare_subscriber(self, *a, **k):
+        return None
+
+    def declare_queryable(self, *a, **k):
+        return None
+
+
+def test_peers_coming_up_together_share_pulls_and_none_is_missed():
+    store = ArgsStore("a", _QuietSession(), Keys("c"))
+    started, release, calls = threading.Event(), threading.Event(), []
+
+    def recover(timeout: float = 1.0) -> int:
+        calls.append(timeout)
+        started.set()
+        release.wait(5)
+        return 0
+
+    store.recover = recover
+    store.on_peer_up("a")  # itself: no pull
+    store.on_peer_up("b")
+    assert started.wait(5)
+    for peer in "cdefg":  # they come up while b's pull runs: one more pull, after it
+        store.on_peer_up(peer)
+    release.set()
+    wait_for(lambda: len(calls) == 2 and not store._pulling, 5, "the pulls done")
+    assert len(calls) == 2
+    store.on_peer_up("h")  # a later peer-up gets a pull of its own
+    wait_for(lambda: len(calls) == 3, 5, "h's pull")
