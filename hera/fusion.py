@@ -51,7 +51,7 @@ class FusionModel(Protocol):
     counters (samples rejected, late, ...), shown in ``hera status`` and written by
     ``hera replay``; ``outputs() -> [(t, values), ...]``: a model that makes several
     rows at a time (a map in tiles) hands every row made since the last call there instead
-    of through :meth:`estimate`; a fusion measure publishes them in order, one per step;
+    of through :meth:`estimate`; a fusion measure publishes them all, in order;
     and, for ``hera replay --smooth`` (``hera.smoothing``), ``filter``: the
     ``KalmanFilter`` or ``ExtendedKalmanFilter`` the model steps (one, for the whole run),
     with ``estimate_of(x) -> list[float]``: the output columns of a state x of that filter
@@ -241,7 +241,7 @@ class FusionMeasure(Measure):
         self._inbox = None
         self._cursor = None
         self._first_t: float | None = None
-        self._outbox: deque[tuple[float, list[float]]] = deque()
+        self._has_outputs = callable(getattr(self.model, "outputs", None))
         self._fused: dict[tuple[str, str], int] = {}
         if self.mode == "arrival":
             self._inbox = Inbox(ctx.store, self.model.inputs, args["backlog"])
@@ -266,11 +266,16 @@ class FusionMeasure(Measure):
             due.append(heapq.heappop(self._held)[-1])
         return due
 
-    def measure(self) -> Reading | None:
+    def measure(self) -> list[Reading] | None:
+        """Fuse the samples due; return the estimates to publish (None: none): in arrival
+        mode every estimate (one per sample that changed it, as ``hera replay`` gives them),
+        in period mode the step's; a model's ``outputs()`` rows when it has them."""
         if self._inbox is not None:
             samples = self._release(self._inbox.drain(timeout=0.8 * self.ctx.spec.period))
         else:
             samples = time_order(self._cursor.new(max_age=self.max_age))
+        every = self._inbox is not None and not self._has_outputs
+        out: list[Reading] = []
         changed = False
         for s in samples:
             if s.seq <= self._fused.get((s.name, s.node), 0):
@@ -281,16 +286,19 @@ class FusionMeasure(Measure):
                 if self._first_t is None:
                     self._first_t = s.t
                     self._record_start(s.t)
+                if every:  # arrival mode: every estimate, as hera replay gives them
+                    est = self.model.estimate()
+                    if est is not None:
+                        out.append(Reading(est[1], est[0]))
         self._report(len(samples))
         rows = model_outputs(self.model)
         if rows is not None:
-            self._outbox.extend(rows)
-            if not self._outbox:
-                return None
-            t, values = self._outbox.popleft()
-            return Reading(values, t)
-        est = self.model.estimate() if changed else None
-        return None if est is None else Reading(est[1], est[0])
+            return [Reading(values, t) for t, values in rows] or None
+        if not every and changed:  # period mode: the estimate of the step
+            est = self.model.estimate()
+            if est is not None:
+                out.append(Reading(est[1], est[0]))
+        return out or None
 
     def code_change(self, old_version: str, state: Mapping[str, Any]) -> None:
         """Take over the replaced fusion measure's model state, the samples it held or had

@@ -104,6 +104,19 @@ class Reading:
     t: float | None = None
 
 
+def readings_of(result: Sequence[float] | Reading | list[Reading] | None) -> list[Reading]:
+    """The readings one step of :meth:`Measure.measure` returned, in order: none for None
+    or an empty list, each of a list of :class:`Reading`, else the one (a plain sequence of
+    numbers is ``Reading(values)``; a reading's ``t`` may be None: "when the step began")."""
+    if result is None:
+        return []
+    if isinstance(result, Reading):
+        return [result]
+    if isinstance(result, list) and (not result or isinstance(result[0], Reading)):
+        return list(result)
+    return [Reading(result)]
+
+
 @dataclass(frozen=True)
 class MeasureSpec:
     """One measure worker of a node: the spec's ``[[nodes.measures]]``/``[[measures]]`` entry.
@@ -331,8 +344,10 @@ class Measure:
         """Prepare the measure from its arguments; raise to refuse them (clear message)."""
         self.ctx = ctx
 
-    def measure(self) -> Sequence[float] | Reading | None:
-        """Take one step: return the values to publish, or None for "nothing this time"."""
+    def measure(self) -> Sequence[float] | Reading | list[Reading] | None:
+        """Take one step: return the values to publish, a list of :class:`Reading` (several
+        samples made in one step, published in that order), or None for "nothing this
+        time"."""
         raise NotImplementedError
 
     def close(self) -> None:

@@ -35,7 +35,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from hera import wallclock
-from hera.measure import Measure, MeasureContext, Reading, own_keys
+from hera.measure import Measure, MeasureContext, Reading, own_keys, readings_of
 
 log = logging.getLogger("hera.worker")
 
@@ -291,12 +291,13 @@ class Worker:
         self.stats.steps += 1
         if self.abandoned:
             return
-        if result is None:
+        batch = readings_of(result)
+        if not batch:
             self.stats.empty += 1
             return
-        reading = result if isinstance(result, Reading) else Reading(result)
-        if reading.t is None:
-            reading = Reading(reading.values, t_wall)
-        self._publish(self.spec.name, reading, grant)
-        self.stats.published += 1
-        self.stats.publish_times.append(time.monotonic())
+        for reading in batch:
+            if reading.t is None:
+                reading = Reading(reading.values, t_wall)
+            self._publish(self.spec.name, reading, grant)
+            self.stats.published += 1
+            self.stats.publish_times.append(time.monotonic())

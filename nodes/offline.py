@@ -30,7 +30,7 @@ from hera.args import ArgsStore
 from hera.csvlog import CsvLog
 from hera.examples import resolve_spec
 from hera.keys import Keys
-from hera.measure import Measure, MeasureContext
+from hera.measure import Measure, MeasureContext, readings_of
 from hera.nodes.boards import CLOCK
 from hera.plugins import find_measure
 from hera.resources import Resources
@@ -131,8 +131,7 @@ def simulate(
                 continue
             node, m, measure = running[i]
             clock.t = t
-            reading = measure.measure()
-            if reading is not None:
+            for reading in readings_of(measure.measure()):
                 key = (str(m.name), node)
                 seqs[key] = seqs.get(key, 0) + 1
                 ts = reading.t if reading.t is not None else t

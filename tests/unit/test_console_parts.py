@@ -242,7 +242,7 @@ def test_a_fusion_measure_takes_over_the_old_state_and_fuses_each_sample_once():
     assert new.model.n == 3 and new.model is not old.model  # the state, in the new model
     assert new.measure() is None  # sample 3 is in the store, but was fused already
     store.offer("x", "a", Message(4, 104.0, (1.0,)))
-    assert new.measure().values == [4.0] and new.model.n == 4
+    assert [r.values for r in new.measure()] == [[4.0]] and new.model.n == 4
 
     class Other:
         version = "2"

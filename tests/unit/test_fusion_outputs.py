@@ -1,5 +1,6 @@
-"""Models that make several rows at a time (a map in tiles): ``outputs()`` rows are published
-one per fusion-measure step, in order, and ``hera replay`` writes every one of them."""
+"""What a fusion measure publishes: a model's ``outputs()`` rows (a map in tiles) all, in
+order; in arrival mode every estimate, as ``hera replay`` writes them; in period mode the
+step's. The worker publishes every reading of a list a step returns."""
 
 from __future__ import annotations
 
@@ -56,21 +57,46 @@ def test_a_model_without_outputs_is_read_through_estimate():
     assert model_outputs(m) == []
 
 
-def test_rows_are_published_one_per_step_in_order():
+def test_rows_are_published_all_in_order():
     ctx = make_ctx("pairs", period=0.01)
     m = PairsMeasure()
     m.init({"mode": "arrival", "reorder_s": 0.0}, ctx)
     for seq, (t, v) in enumerate(((10.0, 1.5), (10.1, 2.5)), start=1):
         ctx.store.offer("a", "n2", Message(seq, t, (v,)))
-    got = [m.measure() for _ in range(5)]
-    assert [(r.t, list(r.values)) for r in got[:4]] == [
+    got = [r for _ in range(3) for r in m.measure() or ()]
+    assert [(r.t, list(r.values)) for r in got] == [
         (10.0, [1.5, 0.0]),
         (10.0, [1.5, 1.0]),
         (10.1, [2.5, 0.0]),
         (10.1, [2.5, 1.0]),
     ]
-    assert got[4] is None
     m.close()
+
+
+class PlainMeasure(FusionMeasure):
+    name = "plain"
+    model_class = Plain
+    columns = Plain.columns
+
+
+def _three_samples_then_steps(mode: str) -> list:
+    ctx = make_ctx("plain", period=0.01)
+    m = PlainMeasure()
+    m.init({"mode": mode, "reorder_s": 0.0}, ctx)
+    for seq, (t, v) in enumerate(((10.0, 1.5), (10.1, 2.5), (10.2, 3.5)), start=1):
+        ctx.store.offer("a", "n2", Message(seq, t, (v,)))
+    got = [(r.t, list(r.values)) for _ in range(3) for r in m.measure() or ()]
+    m.close()
+    return got
+
+
+def test_arrival_mode_publishes_every_estimate_of_a_step():
+    """Three samples arrive before one step: three estimates, not the last one only."""
+    assert _three_samples_then_steps("arrival") == [(10.0, [1.5]), (10.1, [2.5]), (10.2, [3.5])]
+
+
+def test_period_mode_publishes_the_estimate_of_the_step():
+    assert _three_samples_then_steps("period") == [(10.2, [3.5])]
 
 
 def test_replay_writes_every_row(tmp_path):

@@ -171,3 +171,23 @@ def test_workers_of_one_period_take_turns_at_their_wall_clock_offsets():
 
 def _wall_phase(offset):
     return wall_grid(offset, 0.1, time.time(), time.monotonic())
+
+
+class Batches(Measure):
+    def init(self, args, ctx):
+        super().init(args, ctx)
+        self.n = 0
+
+    def measure(self):
+        self.n += 1
+        if self.n % 2 == 0:
+            return []  # nothing this step
+        return [Reading([self.n, k], t=100.0 + self.n + k / 10) for k in range(3)]
+
+
+def test_a_list_of_readings_is_published_in_order_and_counted():
+    w, pub = run_worker(Batches, 0.005, 4)
+    assert [(r.t, list(r.values)) for r in pub] == [
+        (100.0 + n + k / 10, [n, k]) for n in (1, 3) for k in range(3)
+    ]
+    assert (w.stats.published, w.stats.empty) == (6, 2)
