@@ -144,8 +144,9 @@ class MeasureSpec:
         None,
         number(minimum=0),
         "seconds after each multiple of the period on the wall clock (epoch time) at which the "
-        "steps fall, so measures of several nodes take turns (clocks in step: one host, or NTP);"
-        " default: the node's own grid",
+        "steps fall (clocks in step: one host, or NTP): measures of one period and offset wake "
+        "together on every node, different offsets take turns; default 0 (sync measures: "
+        "their slots)",
     )
     iterations: int | str | None = setting(
         None,

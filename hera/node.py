@@ -123,8 +123,6 @@ class Node:
         self.halt = threading.Event()
         self.exit_code = 0
         self.started_at = time.time()
-        self.phase = time.monotonic()
-        """The grid its workers' deadlines share (timer coalescing, :mod:`hera.worker`)."""
         self._factories = services
         self.services: dict[str, NodeService] = {}
         self._handles: list[Any] = []
@@ -306,13 +304,14 @@ class Node:
         return make
 
     def _phase_of(self, spec: MeasureSpec) -> float | None:
-        """The grid of a measure's steps: the wall-clock grid of its ``offset``, else the
-        node's own (sync measures keep their own phase: their steps wait for slots)."""
+        """The grid of a measure's steps (timer coalescing, :mod:`hera.worker`): ``offset``
+        (default 0) past each multiple of its period on this node's wall clock, so the
+        measures of one period wake together on every node of the cluster; None for sync
+        measures (their steps wait for slots and keep their own phase)."""
         if spec.sync:
             return None
-        if spec.offset is not None:
-            return wall_grid(spec.offset, float(spec.period), wallclock.now(), time.monotonic())
-        return self.phase
+        offset = 0.0 if spec.offset is None else spec.offset
+        return wall_grid(offset, float(spec.period), wallclock.now(), time.monotonic())
 
     def _columns(self) -> dict[str, tuple[str, ...]]:
         """Output columns of every measure of the spec (for the CSV sidecars)."""

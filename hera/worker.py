@@ -5,18 +5,16 @@ original slept a relative ``timeout`` and drifted). A step that starts late is c
 the jitter figures; deadlines missed entirely are skipped and counted as overruns, never
 run in a burst.
 
-A measure given an ``offset`` in the spec gets the phase of a wall-clock grid instead
-(:func:`wall_grid`): its steps fall ``offset`` seconds past each multiple of the period in
-epoch time, on every node alike, so sensors of several nodes can take turns (three 10 Hz
-range sensors at offsets 0, 1/30, 2/30 s give a fusion a reading every 33 ms rather than
-three at once every 100 ms).
-
-Timer coalescing: a worker given a ``phase`` (a monotonic instant its node shares with all
-its workers) runs its first step at once, as any worker, and its later steps on the grid
-``phase + j * period``, the first of them at least half a period after that first step.
-The measures of a node that share a period then wake together and their samples leave in
-one batch: a quiet node wakes once per period instead of once per measure, which on
-loopback cut the 5-node observer cluster's CPU by about a quarter (``hera bench bus``).
+Timer coalescing: a worker given a ``phase`` (a monotonic instant) runs its first step at
+once, as any worker, and its later steps on the grid ``phase + j * period``, the first of
+them at least half a period after that first step. Nodes give the phase of a wall-clock
+grid (:func:`wall_grid`): a measure's steps fall its spec's ``offset`` (default 0) past each
+multiple of its period in epoch time, on every node alike. The measures that share a period
+then wake together, on a node and across the nodes of a cluster whose clocks are in step,
+and their samples leave in batches: the 5-node observer cluster (``hera bench bus``) cost
+6.0-10.0 % of a core, against 7.8-13.4 % with a grid per node. Different offsets take turns: three
+10 Hz range sensors at offsets 0, 1/30 and 2/30 s give a fusion a reading every 33 ms rather
+than three at once every 100 ms.
 
 The worker publishes what the measure returns through the node's ``publish`` function and
 reports its exit (normal or with the exception) to its supervisor.
