@@ -15,7 +15,10 @@ A :class:`FusionMeasure` runs a model inside a node, in one of two modes (arg ``
   of that source are kept. Samples are held back up to ``reorder_s`` (default 0.1 s) and
   released in measurement-time order, so a sample that arrives late (a sonar stamps the
   start of its 49 ms ping) is still fused at its own time: live and ``hera replay`` fuse
-  the same sequence. The estimate keeps its true time; it is only published later.
+  the same sequence. The estimate keeps its true time; it is only published later. A step
+  publishes its newest estimate (the ones it replaced are counted, ``superseded``: a model
+  fusing a 100 Hz IMU need not put 100 estimates a second on the bus), or each of them
+  with ``publish = "every"``, as ``hera replay`` writes them.
 
 Each source's samples are fused at most once (a sample with a seq not above the last fused
 one of its (name, node) is skipped). After a hot reload (:mod:`hera.reload`) the new fusion
@@ -117,6 +120,13 @@ FUSION_ARGS = Table(
         Setting("max_age", number(above=0), 0.5, "s; period mode takes samples at most this old"),
         Setting("backlog", number(1, integer=True), 64, "arrival mode: samples kept per source"),
         Setting("reorder_s", number(0, 5), 0.1, "arrival mode: s a sample is held for reordering"),
+        Setting(
+            "publish",
+            choice("step", "every"),
+            "step",
+            "arrival mode: `step`, the newest estimate of each step (those it replaced are "
+            "counted, `superseded`); `every`, each estimate, as `hera replay` writes them",
+        ),
         Setting("model", TABLE, {}, "the model's own settings"),
     ],
 )
@@ -242,6 +252,7 @@ class FusionMeasure(Measure):
         self._cursor = None
         self._first_t: float | None = None
         self._has_outputs = callable(getattr(self.model, "outputs", None))
+        self.every = self.mode == "arrival" and args["publish"] == "every"
         self._fused: dict[tuple[str, str], int] = {}
         if self.mode == "arrival":
             self._inbox = Inbox(ctx.store, self.model.inputs, args["backlog"])
@@ -267,26 +278,27 @@ class FusionMeasure(Measure):
         return due
 
     def measure(self) -> list[Reading] | None:
-        """Fuse the samples due; return the estimates to publish (None: none): in arrival
-        mode every estimate (one per sample that changed it, as ``hera replay`` gives them),
-        in period mode the step's; a model's ``outputs()`` rows when it has them."""
+        """Fuse the samples due; return the estimates to publish (None: none): the step's
+        newest (the others are counted as ``superseded``), or with ``publish = "every"``
+        (arrival mode) one per sample that changed it, as ``hera replay`` gives them; a
+        model's ``outputs()`` rows, all, when it has them."""
         if self._inbox is not None:
             samples = self._release(self._inbox.drain(timeout=0.8 * self.ctx.spec.period))
         else:
             samples = time_order(self._cursor.new(max_age=self.max_age))
-        every = self._inbox is not None and not self._has_outputs
+        every = self.every and not self._has_outputs
         out: list[Reading] = []
-        changed = False
+        changed = 0
         for s in samples:
             if s.seq <= self._fused.get((s.name, s.node), 0):
                 continue  # already fused (a sample handed over by a hot reload)
             self._fused[(s.name, s.node)] = s.seq
             if self.model.process(s):
-                changed = True
+                changed += 1
                 if self._first_t is None:
                     self._first_t = s.t
                     self._record_start(s.t)
-                if every:  # arrival mode: every estimate, as hera replay gives them
+                if every:  # each estimate, as hera replay gives them
                     est = self.model.estimate()
                     if est is not None:
                         out.append(Reading(est[1], est[0]))
@@ -294,7 +306,9 @@ class FusionMeasure(Measure):
         rows = model_outputs(self.model)
         if rows is not None:
             return [Reading(values, t) for t, values in rows] or None
-        if not every and changed:  # period mode: the estimate of the step
+        if not every and changed:  # the estimate of the step
+            c = self.ctx.counters
+            c["superseded"] = c.get("superseded", 0) + changed - 1
             est = self.model.estimate()
             if est is not None:
                 out.append(Reading(est[1], est[0]))

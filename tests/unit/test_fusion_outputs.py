@@ -1,6 +1,7 @@
 """What a fusion measure publishes: a model's ``outputs()`` rows (a map in tiles) all, in
-order; in arrival mode every estimate, as ``hera replay`` writes them; in period mode the
-step's. The worker publishes every reading of a list a step returns."""
+order; a step's newest estimate (those it replaced counted), or each with ``publish =
+"every"``, as ``hera replay`` writes them. The worker publishes every reading of a list a
+step returns."""
 
 from __future__ import annotations
 
@@ -79,24 +80,33 @@ class PlainMeasure(FusionMeasure):
     columns = Plain.columns
 
 
-def _three_samples_then_steps(mode: str) -> list:
+def _three_samples_then_steps(mode: str, publish: str = "step") -> tuple[list, dict]:
     ctx = make_ctx("plain", period=0.01)
     m = PlainMeasure()
-    m.init({"mode": mode, "reorder_s": 0.0}, ctx)
+    args = {"mode": mode, "publish": publish}
+    m.init({**args, "reorder_s": 0.0} if mode == "arrival" else args, ctx)
     for seq, (t, v) in enumerate(((10.0, 1.5), (10.1, 2.5), (10.2, 3.5)), start=1):
         ctx.store.offer("a", "n2", Message(seq, t, (v,)))
     got = [(r.t, list(r.values)) for _ in range(3) for r in m.measure() or ()]
     m.close()
-    return got
+    return got, dict(ctx.counters)
 
 
-def test_arrival_mode_publishes_every_estimate_of_a_step():
-    """Three samples arrive before one step: three estimates, not the last one only."""
-    assert _three_samples_then_steps("arrival") == [(10.0, [1.5]), (10.1, [2.5]), (10.2, [3.5])]
+def test_a_step_publishes_its_newest_estimate_and_counts_those_it_replaced():
+    """Three samples arrive before one step: the step's estimate, two superseded."""
+    got, counters = _three_samples_then_steps("arrival")
+    assert got == [(10.2, [3.5])] and counters["superseded"] == 2
+
+
+def test_publish_every_gives_each_estimate_of_a_step():
+    got, counters = _three_samples_then_steps("arrival", "every")
+    assert got == [(10.0, [1.5]), (10.1, [2.5]), (10.2, [3.5])]
+    assert counters.get("superseded", 0) == 0
 
 
 def test_period_mode_publishes_the_estimate_of_the_step():
-    assert _three_samples_then_steps("period") == [(10.2, [3.5])]
+    got, _ = _three_samples_then_steps("period")
+    assert got == [(10.2, [3.5])]
 
 
 def test_replay_writes_every_row(tmp_path):
