@@ -432,10 +432,14 @@ class Check:
         return not (self.overlaps or self.out_of_order or self.past_deadline)
 
 
-def check_firings(firings: list[Firing]) -> Check:
+def check_firings(firings: list[Firing], pause: float = 0.0) -> Check:
     """Check mutual exclusion on the real trigger times: no two firings overlap; in start
     order the tokens (audit labels: a sonar cannot check them) strictly increase, so no
-    stale grant fired after a newer one; each sound ends within its lease."""
+    stale grant fired after a newer one; each sound's fit check held (checked + slot within
+    the lease) and it ends within its lease plus ``pause`` (s): condition C of
+    ``sync/README.md`` tolerates a pause p between the check and the trigger
+    (``Timing.trigger_pause``), so a sound may outlive its lease by that much and no more.
+    ``pause = 0`` asks for every sound within its lease."""
     fs = sorted(firings, key=lambda x: x.start)
     overlaps, disorder = [], []
     latest: Firing | None = None
@@ -447,7 +451,9 @@ def check_firings(firings: list[Firing]) -> Check:
             overlaps.append((latest, cur))
         if latest is None or cur.end > latest.end:
             latest = cur
-    past = [f for f in fs if f.end > f.deadline]
+    past = [
+        f for f in fs if f.checked + (f.end - f.start) > f.deadline or f.end > f.deadline + pause
+    ]
     return Check(len(fs), overlaps, disorder, past)
 
 

@@ -22,6 +22,17 @@ def test_check_firings_sees_an_overlap_a_stale_grant_and_a_late_sound():
     assert c.past_deadline and not c.overlaps
 
 
+def test_a_sound_may_outlive_its_lease_by_the_tolerated_trigger_pause_only():
+    """Condition C: checked at 0.93 with a 0.05 s slot (fits the lease ending at 0.99), the
+    trigger 0.03 s later: the sound ends 0.02 s past the lease, within a 0.04 s pause."""
+    late = Firing(0.96, 1.01, 0.99, "s1/m", 1, 1 << 32 | 1, "s1", 0.93)
+    assert check_firings([late], pause=0.04).ok
+    assert check_firings([late], pause=0.005).past_deadline == [late]  # beyond the pause
+    assert check_firings([late]).past_deadline == [late]  # strict by default
+    wrong = Firing(0.96, 1.01, 0.99, "s1/m", 1, 1 << 32 | 1, "s1", 0.95)  # 0.95 + 0.05 > 0.99
+    assert check_firings([wrong], pause=0.04).past_deadline == [wrong]  # the check was wrong
+
+
 def test_the_logged_trigger_time_is_what_the_audit_checks(tmp_path):
     """A firing whose trigger came 120 ms after its check (the check passed at 1.00) is
     audited at its trigger: it overlaps the next holder's sound and outlives its lease."""
