@@ -197,7 +197,7 @@ def recover(
     """Seconds from the fault's end (its effect, for an instantaneous fault) until every
     affected stream flows again; and the same per stream (None: not within ``horizon``).
     Sparse and bursty data streams (no steady rate to come back to) are listed but do not
-    count."""
+    count, unless no other stream is affected: then each must have a sample again."""
     ref = effect_time(h, f) if f.kind in (*MEASURE_FAULTS, "crash_node") else f.until
     if ref is None:
         return None, {}
@@ -214,6 +214,7 @@ def recover(
         per[label] = None if t is None else t - ref
         if s.key in audited or (b is not None and not b.sparse and not b.bursty):
             judged.append(label)
+    judged = judged or list(per)
     if not judged or any(per[k] is None for k in judged):
         return None, per
     return max(per[k] for k in judged), per

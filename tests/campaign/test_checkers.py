@@ -356,3 +356,28 @@ def test_skipped_checkers_are_never_counted_as_passed(tmp_path):
     camp = {**CAMPAIGN, "checks": {**CAMPAIGN["checks"], "skip": ["gaps"]}}
     v = verdicts(clean(tmp_path, camp))
     assert v["gaps"].skipped and v["gaps"].status == "skipped"
+
+
+def test_a_fault_that_touches_only_bursty_streams_is_judged_by_their_return(tmp_path):
+    """Node c publishes its estimates in bursts (several within milliseconds, then a pause:
+    no steady rate to come back to). Paused for 2 s, it recovers once its stream has
+    samples again; if it never has, recovery fails naming it."""
+
+    def bursts(resumes: bool):
+        def edit(node, times):
+            if node != "c":
+                return times
+            starts = [t for t in steady(5.0, 119.0, 0.25) if resumes or t < 60.0]
+            return [t + k * 0.001 for t in starts if not 60.0 <= t < 62.0 for k in range(3)]
+
+        return edit
+
+    def pause_c(s):
+        s.fault("pause", 60.0, 2.0, nodes=["c"], target="c", name="pause c")
+        s.log("b", 60.5, "hera.peers", "peer c down")  # its lease ran out
+        s.log("b", 62.1, "hera.peers", "peer c up")
+
+    ok = verdicts(clean(tmp_path / "ok", model_times=bursts(True), then=[pause_c]))
+    assert ok["recovery"].passed, ok["recovery"].summary
+    bad = verdicts(clean(tmp_path / "bad", model_times=bursts(False), then=[pause_c]))
+    assert not bad["recovery"].passed and "track_gyro@c" in bad["recovery"].summary
