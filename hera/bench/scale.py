@@ -4,7 +4,10 @@ For 8, 16 and 32 nodes (``--nodes``), each node publishes 4 streams at 50 Hz and
 4 streams of each of the 3 nodes after it (so every stream is read by 3 other nodes; stores
 subscribe by interest and take nothing else). Two topologies: a full mesh of peers on
 loopback (the embedded default), and client nodes behind one router (two for more than 16
-nodes). Measured after a warm-up, over ``--seconds``:
+nodes). Two ways to time the streams (``--phases``): ``grid``, the default of a spec (every
+stream steps on the same wall-clock instants: 128 samples at once at 32 nodes), and
+``staggered`` (node i's streams at ``offset = i / n`` of the period: the nodes take turns).
+Measured after a warm-up, over ``--seconds``:
 
 - delivered: samples received by the readers / samples the publishers sent in between
   (seq gaps count as losses);
@@ -108,8 +111,9 @@ class Reader(Measure):
         self.ctx.store.remove_listener(self._on_sample)
 
 
-def spec_text(n: int, topology: str, warmup: float) -> str:
-    """The benchmark cluster: ``n`` nodes, ``topology`` ``mesh`` or ``routers``."""
+def spec_text(n: int, topology: str, warmup: float, phases: str = "grid") -> str:
+    """The benchmark cluster: ``n`` nodes, ``topology`` ``mesh`` or ``routers``, the streams
+    on one grid (``phases`` ``grid``) or the nodes' in turn (``staggered``)."""
     from hera.launcher import free_ports
 
     lines = [f'[cluster]\nname = "scale{n}{topology}"\nlease_ms = 3000\n']
@@ -122,8 +126,11 @@ def spec_text(n: int, topology: str, warmup: float) -> str:
         if routers:  # clients, split between the routers
             port = routers[i % len(routers)]
             lines.append(f'mode = "client"\nconnect = ["tcp/127.0.0.1:{port}"]\n')
+        offset = f"offset = {PERIOD * i / n:.6f}\n" if phases == "staggered" else ""
         for k in range(1, STREAMS + 1):
-            lines.append(f'[[nodes.measures]]\nuse = "hera.bench.scale:Stream"\nname = "s{k}"\n')
+            lines.append(
+                f'[[nodes.measures]]\nuse = "hera.bench.scale:Stream"\nname = "s{k}"\n{offset}'
+            )
         streams = [
             f"s{k}/n{(i + j) % n + 1}" for j in range(1, READS + 1) for k in range(1, STREAMS + 1)
         ]
@@ -179,10 +186,10 @@ def cluster(spec: str) -> Iterator[tuple[ClusterClient, subprocess.Popen, Path]]
                 proc.wait()
 
 
-def run(n: int, topology: str, seconds: float) -> dict[str, float]:
+def run(n: int, topology: str, seconds: float, phases: str = "grid") -> dict[str, float]:
     """One configuration; its figures."""
     warmup = 5.0
-    with cluster(spec_text(n, topology, warmup)) as (client, _proc, _tmp):
+    with cluster(spec_text(n, topology, warmup, phases)) as (client, _proc, _tmp):
         deadline = time.monotonic() + 90
         while len(client.status(timeout=2.0)) < n:
             if time.monotonic() > deadline:
@@ -215,10 +222,18 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="hera bench scale", description=__doc__.splitlines()[0])
     ap.add_argument("--nodes", default="8,16,32", help="comma-separated node counts")
     ap.add_argument("--topologies", default="mesh,routers", help="mesh and/or routers")
+    ap.add_argument("--phases", default="grid,staggered", help="grid and/or staggered")
     ap.add_argument("--seconds", type=float, default=15.0, help="measuring window per run")
     ap.add_argument("--quick", action="store_true", help="8 nodes, 5 s (smoke test)")
     args = ap.parse_args(argv)
     sizes = [8] if args.quick else [int(x) for x in args.nodes.split(",")]
+    phases = ["grid"] if args.quick else args.phases.split(",")
+    for p in phases:
+        if p not in ("grid", "staggered"):
+            print(
+                f"hera bench scale: --phases: unknown {p!r}; use grid, staggered", file=sys.stderr
+            )
+            return 2
     seconds = 5.0 if args.quick else args.seconds
     print(
         f"hera bench scale: {STREAMS} streams at {1 / PERIOD:.0f} Hz per node, each read by "
@@ -226,23 +241,23 @@ def main(argv: list[str]) -> int:
         flush=True,
     )
     head = (
-        f"{'nodes':>5} {'topology':<8} {'delivered %':>11} {'p50 ms':>7} {'p99 ms':>7} "
-        f"{'CPU/node %':>10} {'machine %':>9} {'RSS MB':>6}"
+        f"{'nodes':>5} {'topology':<8} {'phases':<9} {'delivered %':>11} {'p50 ms':>7} "
+        f"{'p99 ms':>7} {'CPU/node %':>10} {'machine %':>9} {'RSS MB':>6}"
     )
     print(head, flush=True)
-    for n in sizes:
-        for topology in args.topologies.split(","):
-            try:
-                r = run(n, topology, seconds)
-            except RuntimeError as e:
-                print(f"{n:>5} {topology:<8} failed: {e}", flush=True)
-                continue
-            print(
-                f"{n:>5} {topology:<8} {r['delivered_pct']:>11.3f} {r['p50_ms']:>7.2f} "
-                f"{r['p99_ms']:>7.2f} {r['cpu_node_pct']:>10.1f} {r['cpu_machine_pct']:>9.1f} "
-                f"{r['rss_mb']:>6.0f}",
-                flush=True,
-            )
+    configs = [(n, t, p) for n in sizes for t in args.topologies.split(",") for p in phases]
+    for n, topology, phase in configs:
+        try:
+            r = run(n, topology, seconds, phase)
+        except RuntimeError as e:
+            print(f"{n:>5} {topology:<8} {phase:<9} failed: {e}", flush=True)
+            continue
+        print(
+            f"{n:>5} {topology:<8} {phase:<9} {r['delivered_pct']:>11.3f} {r['p50_ms']:>7.2f} "
+            f"{r['p99_ms']:>7.2f} {r['cpu_node_pct']:>10.1f} {r['cpu_machine_pct']:>9.1f} "
+            f"{r['rss_mb']:>6.0f}",
+            flush=True,
+        )
     print("targets: 32 nodes >= 99.9 % delivered, p99 <= 20 ms (the better topology)")
     return 0
 
