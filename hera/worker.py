@@ -12,9 +12,9 @@ grid (:func:`wall_grid`): a measure's steps fall its spec's ``offset`` (default 
 multiple of its period in epoch time, on every node alike. The measures that share a period
 then wake together, on a node and across the nodes of a cluster whose clocks are in step,
 and their samples leave in batches: the 5-node observer cluster (``hera bench bus``) cost
-6.0-10.0 % of a core, against 7.8-13.4 % with a grid per node. Different offsets take turns: three
-10 Hz range sensors at offsets 0, 1/30 and 2/30 s give a fusion a reading every 33 ms rather
-than three at once every 100 ms.
+6.0-10.0 % of a core, against 7.8-13.4 % with a grid per node. Different offsets take
+turns: three 10 Hz range sensors at offsets 0, 1/30 and 2/30 s give a fusion a reading
+every 33 ms rather than three at once every 100 ms.
 
 The worker publishes what the measure returns through the node's ``publish`` function and
 reports its exit (normal or with the exception) to its supervisor.

@@ -44,7 +44,7 @@ class _TofMeasure(FusionMeasure):
         super().init(args, ctx)
         self._last_t = float("-inf")
 
-    def measure(self) -> Reading | None:
+    def measure(self) -> list[Reading] | Reading | None:
         out = super().measure()
         if not self.forecasting:
             return out
