@@ -192,7 +192,11 @@ def test_replay_smooth_is_no_worse_than_the_forward_pass(train_run, tmp_path):
     """``hera replay --smooth`` writes RTS-smoothed estimates of every EKF rung next to the
     forward (filtered) ones, at the same instants, as a run dir of its own. Scored against
     the truth: no worse than the filter that produced them (within the noise floors of
-    METRICS) on every metric of the rungs in HELD, and better on most metrics over all."""
+    METRICS) on every metric of the rungs in HELD, and better on most of the metrics that
+    moved by more than their floor (one below the floor either way is a tie: a rung whose
+    filter is already within 2 mm cannot show a gain, and counting its coin flips made
+    this check fail in one clean-clone run of three, 13 of 19 "better", every loss under
+    0.1 cm but e5's)."""
     out = tmp_path / "smoothed-replay"
     proc = subprocess.run(
         [sys.executable, "-m", "hera", "replay", str(train_run), "--out", str(out), "--smooth"],
@@ -206,16 +210,16 @@ def test_replay_smooth_is_no_worse_than_the_forward_pass(train_run, tmp_path):
     forward = by_model(evaluate(out))
     smoothed = by_model(evaluate(out / "smoothed"))
     assert set(smoothed) == {(m, "replay") for m in LADDER}
-    better = total = 0
+    better = worse = 0
     for key, s in smoothed.items():
         f = forward[key]
         assert s["estimates"] == f["estimates"], key
         for metric in SMOOTHED:
             if f.get(metric) is None:
                 continue
+            floor = METRICS[metric.replace("_settled", "")]
             if key[0] in HELD:
-                floor = METRICS[metric.replace("_settled", "")]
                 assert s[metric] <= f[metric] + floor, (key, metric, f[metric], s[metric])
-            better += s[metric] < f[metric]
-            total += 1
-    assert better >= 0.75 * total, (forward, smoothed)
+            better += s[metric] < f[metric] - floor
+            worse += s[metric] > f[metric] + floor
+    assert better >= 8 and better >= 3 * worse, (better, worse, forward, smoothed)
