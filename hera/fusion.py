@@ -251,8 +251,8 @@ class FusionMeasure(Measure):
         self._inbox = None
         self._cursor = None
         self._first_t: float | None = None
-        self._has_outputs = callable(getattr(self.model, "outputs", None))
-        self.every = self.mode == "arrival" and args["publish"] == "every"
+        has_outputs = callable(getattr(self.model, "outputs", None))  # its rows go out as made
+        self.every = self.mode == "arrival" and args["publish"] == "every" and not has_outputs
         self._fused: dict[tuple[str, str], int] = {}
         if self.mode == "arrival":
             self._inbox = Inbox(ctx.store, self.model.inputs, args["backlog"])
@@ -286,7 +286,6 @@ class FusionMeasure(Measure):
             samples = self._release(self._inbox.drain(timeout=0.8 * self.ctx.spec.period))
         else:
             samples = time_order(self._cursor.new(max_age=self.max_age))
-        every = self.every and not self._has_outputs
         out: list[Reading] = []
         changed = 0
         for s in samples:
@@ -298,7 +297,7 @@ class FusionMeasure(Measure):
                 if self._first_t is None:
                     self._first_t = s.t
                     self._record_start(s.t)
-                if every:  # each estimate, as hera replay gives them
+                if self.every:  # each estimate, as hera replay gives them
                     est = self.model.estimate()
                     if est is not None:
                         out.append(Reading(est[1], est[0]))
@@ -306,7 +305,7 @@ class FusionMeasure(Measure):
         rows = model_outputs(self.model)
         if rows is not None:
             return [Reading(values, t) for t, values in rows] or None
-        if not every and changed:  # the estimate of the step
+        if not self.every and changed:  # the estimate of the step
             c = self.ctx.counters
             c["superseded"] = c.get("superseded", 0) + changed - 1
             est = self.model.estimate()
