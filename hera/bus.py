@@ -78,8 +78,26 @@ class BusConfig:
 
 OVERRIDES_ENV = "HERA_BUS_OVERRIDES"
 """Environment variable naming a JSON file of per-node bus overrides (see
-:func:`with_overrides`); a fault campaign sets it to route the nodes' links through its
-link proxy."""
+:func:`with_overrides` and :func:`netns_of`); a fault campaign sets it to route the nodes'
+links through its link proxy, or to run each node in a network namespace of its own."""
+
+
+def netns_of(node: str, environ: Mapping[str, str] = os.environ) -> str | None:
+    """The network namespace that node ``node`` runs in, from the overrides file
+    (``{"nodes": {"<node>": {"netns": "<name>"}}}``), or None: the launcher starts such a
+    node with ``ip netns exec <name>``. ValueError naming the file when it cannot be read."""
+    path = environ.get(OVERRIDES_ENV)
+    if not path:
+        return None
+    try:
+        with open(path) as f:
+            mine = json.load(f)["nodes"].get(node) or {}
+        ns = mine.get("netns")
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+        raise ValueError(f"bus overrides {path} ({OVERRIDES_ENV}) cannot be used: {e}") from None
+    if ns is not None and not isinstance(ns, str):
+        raise ValueError(f"bus overrides {path}: node {node!r}: netns must be a name, got {ns!r}")
+    return ns
 
 
 def with_overrides(

@@ -24,7 +24,8 @@ HELP_EXAMPLES = {
     "inject": "hera inject n3 crash obs1\n  hera inject sonar_1 board stuck --board sonar_1/sonar"
     "\n  hera inject nav_1 partition        (a cluster started by hera campaign)",
     "campaign": "hera campaign train thesis-ch5\n  hera campaign train nemesis --seed 7"
-    "\n  hera campaign train partitions --short",
+    "\n  hera campaign train partitions --short"
+    "\n  hera campaign train partitions --short --links netns",
     "measures": "hera measures track_radius",
     "apps": "hera apps",
     "examples": "hera examples",
@@ -275,6 +276,15 @@ def _parser() -> argparse.ArgumentParser:
     cp.add_argument(
         "--attach", action="store_true", help="use the running cluster of SPEC (no network faults)"
     )
+    cp.add_argument(
+        "--links",
+        choices=["auto", "proxy", "netns"],
+        default="auto",
+        help="how network faults cut links: nftables in a network namespace per node (netns: "
+        "root, ip and nft needed), the link proxy (proxy), or auto (default): netns where the "
+        "machine allows it, the campaign schedules no delay and does not ask for links = true, "
+        "else the proxy",
+    )
     im = _command(
         sub,
         "import",
@@ -389,8 +399,9 @@ def _dispatch(args: argparse.Namespace, argv: list[str] | None = None) -> int:
 
         command = " ".join(["hera", *(argv if argv is not None else sys.argv[1:])])
         run = CampaignRun(
-            args.spec, args.campaign, args.run_dir, args.seed, args.short, args.attach
-        )
+            args.spec, args.campaign, args.run_dir, args.seed, args.short, args.attach,
+            links=args.links,
+        )  # fmt: skip
         return run.run(command)
     if args.cmd == "import":
         return _import(args)

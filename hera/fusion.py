@@ -20,6 +20,14 @@ A :class:`FusionMeasure` runs a model inside a node, in one of two modes (arg ``
   fusing a 100 Hz IMU need not put 100 estimates a second on the bus), or each of them
   with ``publish = "every"``, as ``hera replay`` writes them.
 
+A measure the supervisor restarts (it crashed, hung, or was stopped and started) resumes its
+model from a checkpoint, a copy taken every :data:`CHECKPOINT_S` of the model's state, if
+that is at most ``resume_s`` old (default 5 s) and the model's settings are unchanged;
+samples that came in between are lost to it, as samples lost on the bus are. A model that
+raised starts afresh (its checkpoint is dropped: its state may be what broke it), and so
+does a model in a node process that restarted (checkpoints are kept in the node's
+``ctx.resources``, in memory).
+
 Each source's samples are fused at most once (a sample with a seq not above the last fused
 one of its (name, node) is skipped). After a hot reload (:mod:`hera.reload`) the new fusion
 measure takes over the old one's model state and the samples it held
@@ -30,6 +38,7 @@ its name, the old model's attributes are carried over as they are.
 
 from __future__ import annotations
 
+import copy
 import heapq
 import inspect
 import json
@@ -127,9 +136,25 @@ FUSION_ARGS = Table(
             "arrival mode: `step`, the newest estimate of each step (those it replaced are "
             "counted, `superseded`); `every`, each estimate, as `hera replay` writes them",
         ),
+        Setting(
+            "resume_s",
+            number(0),
+            5.0,
+            "a restarted measure resumes its model from a checkpoint at most this old (s; "
+            "0: always afresh); a model that raised starts afresh",
+        ),
         Setting("model", TABLE, {}, "the model's own settings"),
     ],
 )
+
+
+CHECKPOINT_S = 1.0
+"""How often (s, at most) a fusion measure copies its model's state for a restart."""
+
+CHECKPOINT_KEY = "fusion/checkpoint/"
+"""``ctx.resources`` key prefix (+ the measure's name) of a fusion measure's checkpoint:
+(monotonic time, the model's settings as JSON, a copy of the model, the seqs fused, the
+first fused sample's time)."""
 
 
 def time_order(samples: Sequence[Sample]) -> list[Sample]:
@@ -251,13 +276,53 @@ class FusionMeasure(Measure):
         self._inbox = None
         self._cursor = None
         self._first_t: float | None = None
+        self._key = CHECKPOINT_KEY + ctx.spec.name
+        self._settings = json.dumps(args["model"], sort_keys=True, default=str)
+        self._checkpointed = time.monotonic()  # the first copy after CHECKPOINT_S
+        self._checkpoints = args["resume_s"] > 0
         has_outputs = callable(getattr(self.model, "outputs", None))  # its rows go out as made
         self.every = self.mode == "arrival" and args["publish"] == "every" and not has_outputs
         self._fused: dict[tuple[str, str], int] = {}
+        if self._checkpoints:
+            self._resume(args["resume_s"])
+        else:
+            ctx.resources.put(self._key, None)
         if self.mode == "arrival":
             self._inbox = Inbox(ctx.store, self.model.inputs, args["backlog"])
         else:
             self._cursor = ctx.store.cursor(self.model.inputs)
+
+    def _resume(self, resume_s: float) -> None:
+        """Take the model's state from this measure's checkpoint, if there is one at most
+        ``resume_s`` old, of a model of the same class and settings."""
+        saved = self.ctx.resources.get(self._key)
+        if saved is None:
+            return
+        at, settings, model, fused, first_t = saved
+        age = time.monotonic() - at
+        if age > resume_s or settings != self._settings or type(model) is not type(self.model):
+            return
+        self.model = copy.deepcopy(model)  # the checkpoint stays as it was, for a next time
+        self._fused = dict(fused)
+        self._first_t = first_t
+        c = self.ctx.counters
+        c["resumed"] = c.get("resumed", 0) + 1
+        self.ctx.log.info("resumed the model from its checkpoint of %.2f s ago", age)
+
+    def _checkpoint(self) -> None:
+        """Copy the model's state for a restart (at most every CHECKPOINT_S)."""
+        now = time.monotonic()
+        if now - self._checkpointed < CHECKPOINT_S:
+            return
+        self._checkpointed = now
+        try:
+            model = copy.deepcopy(self.model)
+        except Exception as e:  # a model holding what cannot be copied: no checkpoints
+            self._checkpoints = False
+            self.ctx.log.warning("no checkpoints of the model (it cannot be copied: %s)", e)
+            return
+        saved = (now, self._settings, model, dict(self._fused), self._first_t)
+        self.ctx.resources.put(self._key, saved)
 
     def _release(self, arrived: list[Sample]) -> list[Sample]:
         """Hold samples up to ``reorder_s``; return those due, in measurement-time order.
@@ -292,7 +357,12 @@ class FusionMeasure(Measure):
             if s.seq <= self._fused.get((s.name, s.node), 0):
                 continue  # already fused (a sample handed over by a hot reload)
             self._fused[(s.name, s.node)] = s.seq
-            if self.model.process(s):
+            try:
+                fused = self.model.process(s)
+            except BaseException:  # its state may be what broke it: a restart starts afresh
+                self.ctx.resources.put(self._key, None)
+                raise
+            if fused:
                 changed += 1
                 if self._first_t is None:
                     self._first_t = s.t
@@ -302,7 +372,9 @@ class FusionMeasure(Measure):
                     if est is not None:
                         out.append(Reading(est[1], est[0]))
         self._report(len(samples))
-        rows = model_outputs(self.model)
+        rows = model_outputs(self.model)  # drained before a copy: a resumed model never repeats
+        if changed and self._checkpoints:
+            self._checkpoint()
         if rows is not None:
             return [Reading(values, t) for t, values in rows] or None
         if not self.every and changed:  # the estimate of the step

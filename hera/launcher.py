@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from hera.application import Panel
+from hera.bus import netns_of
 from hera.client import ClusterClient, registry_dir
 from hera.fusion import spec_models
 from hera.keys import Keys
@@ -90,6 +91,8 @@ def busy_ports(spec: ClusterSpec, local: set[str] | None = None) -> list[str]:
     out = []
     for part in (*spec.nodes, *spec.routers):
         if not part.port or (local is not None and part.name not in local):
+            continue
+        if netns_of(part.name):  # a namespace of its own, made for it: every port is free
             continue
         host = part.host or spec.host
         what = "router" if part in spec.routers else "node"
@@ -306,6 +309,9 @@ class Launcher:
                 "--checked",  # the launcher checked the spec before it started any process
                 *parent,
             )
+        ns = netns_of(np.name)
+        if ns is not None:  # a fault campaign's node in its own network namespace
+            cmd = ["ip", "netns", "exec", ns, *cmd]
         np.proc = subprocess.Popen(
             cmd,
             stdout=log,

@@ -339,6 +339,14 @@ class ClusterSpec:
         )
         return replace(self, nodes=nodes, routers=routers)
 
+    def with_hosts(self, hosts: dict[str, str]) -> ClusterSpec:
+        """A copy where each node named in ``hosts`` runs on the host at that address."""
+        unknown = sorted(set(hosts) - {n.name for n in self.nodes})
+        if unknown:
+            raise ValueError(f"no node {unknown[0]!r} in the spec")
+        nodes = tuple(replace(n, host=hosts[n.name]) if n.name in hosts else n for n in self.nodes)
+        return replace(self, nodes=nodes)
+
     def with_security(self, **values: Any) -> ClusterSpec:
         """A copy with the given security settings (``certs``, ``secret``, ``tls`` ...)."""
         return replace(self, **values)

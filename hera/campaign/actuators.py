@@ -9,7 +9,8 @@
 - ``board`` faults: the simulator's ``board`` control verb (with the fault's duration, so
   the simulator clears it by itself even if the campaign dies; cleared at the end too);
 - ``partition``, ``loss``, ``delay``, ``reset``: rules of the link proxy on pairs of
-  nodes (:mod:`hera.campaign.linkproxy`);
+  nodes (:mod:`hera.campaign.linkproxy`), or of nftables in the nodes' namespaces
+  (:mod:`hera.campaign.netns`: same requests, no delay);
 - ``skew``: the node's ``clock`` control verb (back to 0 at the end).
 
 Every action is journaled (:mod:`hera.campaign.journal`) with the nodes it hit. An action
@@ -28,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from hera.campaign import journal
-from hera.campaign.links import ProxyProcess, cut_pairs, links_of
+from hera.campaign.links import Links, cut_pairs, links_of
 from hera.campaign.plan import Planned, fault_rng
 from hera.campaign.targets import ClusterView, TargetError, resolve, resolve_groups
 
@@ -60,7 +61,7 @@ class Injector:
         view: ClusterView,
         folder: Path,
         seed: int,
-        proxy: ProxyProcess | None = None,
+        proxy: Links | None = None,
         fire_logs: list[Path] | None = None,
     ) -> None:
         self.view = view
@@ -87,13 +88,13 @@ class Injector:
     def _links(self, request: dict[str, Any]) -> dict[str, Any]:
         if self.proxy is None:
             raise FaultFailed(
-                "network faults need the link proxy: the cluster must be started by the "
+                "network faults need the campaign's links: the cluster must be started by the "
                 "campaign (not attached to)"
             )
         try:
             return self.proxy.command(request)
-        except (OSError, ValueError) as e:
-            raise FaultFailed(f"link proxy: {e}") from None
+        except (OSError, ValueError, RuntimeError) as e:  # RuntimeError: an nft command
+            raise FaultFailed(f"links: {e}") from None
 
     def _wait_for_firing(self, timeout: float) -> dict[str, Any]:
         """Block until a new line appears in a fire log (a sound just started)."""
@@ -199,8 +200,9 @@ class Injector:
                 journal.append(self.folder, "flap", index=p.index, state="cut")
                 if act.stop.wait(on):
                     break
+                began = journal.now()
                 self._links({"op": "clear", "pairs": act.pairs})
-                journal.append(self.folder, "flap", index=p.index, state="healed")
+                journal.append(self.folder, "flap", began, index=p.index, state="healed")
                 flaps += 1
             except FaultFailed as e:
                 journal.append(self.folder, "error", index=p.index, name=p.name, error=str(e))
@@ -214,6 +216,7 @@ class Injector:
         journal the end."""
         p = act.planned
         error = None
+        began = journal.now()
         try:
             if act.thread is not None:
                 act.stop.set()
@@ -232,6 +235,7 @@ class Injector:
         journal.append(
             self.folder,
             "end",
+            began,
             index=p.index,
             name=p.name,
             kind=p.kind,

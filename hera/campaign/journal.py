@@ -5,7 +5,9 @@
 undone), ``error`` (it could not be done: ``error`` says why), ``note`` (``extra``: what
 else is worth knowing, e.g. who held the slot when the leader was killed). ``t`` is the wall
 clock (epoch s) and ``clock`` the sync clock (:mod:`hera.sync.clock`, the fire logs' clock)
-read at the same moment. Faults injected by hand (``hera inject`` on a campaign's cluster)
+read at the same moment; an ``end`` (and a flap's ``healed``) is stamped when the undoing
+began, since the fault is no longer whole from then on (healing the links of several
+namespaces takes tens of ms). Faults injected by hand (``hera inject`` on a campaign's cluster)
 are journaled too, with ``index`` -1.
 
 Each line is appended with one ``write`` on an ``O_APPEND`` file, so two writers (the
@@ -30,9 +32,12 @@ def now() -> tuple[float, float]:
     return time.time(), sync_clock.now()
 
 
-def append(folder: Path, event: str, **fields: Any) -> dict[str, Any]:
-    """Append one event to ``folder/faults.jsonl``; return it."""
-    t, clock = now()
+def append(
+    folder: Path, event: str, at: tuple[float, float] | None = None, **fields: Any
+) -> dict[str, Any]:
+    """Append one event to ``folder/faults.jsonl``; return it. ``at``: the (wall, sync)
+    clocks it happened at (:func:`now` read then), default now."""
+    t, clock = at if at is not None else now()
     entry = {"event": event, "t": t, "clock": clock, **fields}
     line = (json.dumps(entry, default=str) + "\n").encode()
     fd = os.open(Path(folder) / FILE, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)

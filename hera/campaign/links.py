@@ -28,7 +28,7 @@ import uuid
 from collections.abc import Iterable
 from itertools import permutations
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from hera.bus import OVERRIDES_ENV, tcp_endpoint
 from hera.spec import ClusterSpec
@@ -37,6 +37,13 @@ PLAN_FILE = "links.json"
 PROXY_MAIN = (
     "import sys; del sys.path[0]; from hera.campaign.linkproxy import main; sys.exit(main())"
 )
+
+
+class Links(Protocol):
+    """What cuts a campaign's links: :class:`ProxyProcess` or
+    :class:`hera.campaign.netns.Namespaces` (the same control requests)."""
+
+    def command(self, request: dict[str, Any]) -> dict[str, Any]: ...
 
 
 def plan_links(spec: ClusterSpec, ports: list[int], seed: int = 0) -> dict[str, Any]:

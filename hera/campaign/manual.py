@@ -7,11 +7,12 @@
 - ``hera inject NODE loss SHARE``, ``delay MS [--jitter MS]``, ``reset`` on NODE's links
   (to ``--peers`` only, if given); ``hera inject NODE heal`` gives them back (``'*'``: all).
 
-Network faults act on the link proxy of a cluster started by ``hera campaign`` (its links
-run through it; a plain ``hera up`` cluster has none). On a campaign's cluster every
-injection is journaled beside the campaign's own faults, so a person can run a campaign
-(``deploy/campaigns/manual.toml`` has no scheduled fault), inject by hand, and get the
-report and the checkers' verdicts when it ends.
+Network faults act on the links of a cluster started by ``hera campaign``: through its link
+proxy, or as nftables rules in its nodes' namespaces (``--links netns``; a plain ``hera up``
+cluster has neither). On a campaign's cluster every injection is journaled beside the
+campaign's own faults, so a person can run a campaign (``deploy/campaigns/manual.toml`` has
+no scheduled fault), inject by hand, and get the report and the checkers' verdicts when it
+ends.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from typing import Any
 from hera.campaign import journal
 from hera.campaign.history import META
 from hera.campaign.links import PLAN_FILE, control, cut_pairs, links_of
+from hera.campaign.netns import Namespaces
 from hera.client import ClusterClient
 
 NETWORK = ("partition", "loss", "delay", "reset", "heal")
@@ -125,7 +127,7 @@ def _network(
     if folder is None or not (folder / PLAN_FILE).exists():
         raise ValueError(
             "network faults need a cluster started by 'hera campaign' (its links run through "
-            "the link proxy); this one was started by 'hera up'"
+            "the link proxy or its namespaces); this one was started by 'hera up'"
         )
     plan = json.loads((folder / PLAN_FILE).read_text())
     others = [p for p in (peers or names) if p != node]
@@ -150,6 +152,13 @@ def _network(
         }
     else:
         req = {"op": "set", "pairs": pairs, "mode": "reset"}
+    if plan.get("backend") == "netns":  # nftables rules in the nodes' namespaces
+        try:
+            return Namespaces.from_plan(plan).command(req)
+        except RuntimeError as e:
+            raise LookupError(
+                f"the campaign's namespaces cannot take the rule ({e}): is it running?"
+            ) from None
     try:
         return control(plan["control"], req)
     except OSError as e:

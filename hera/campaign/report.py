@@ -236,7 +236,8 @@ def html_page(content: list[Block], title: str) -> str:
 
 
 def timeline(h: History, path: Path, dpi: int = 80) -> Path | None:
-    """Draw ``timeline.png`` (see the module docstring); None without matplotlib."""
+    """Draw ``timeline.png`` (see the module docstring); None without matplotlib, or when
+    the cluster never started."""
     try:
         from hera.plotting import pyplot
     except ImportError:
@@ -244,6 +245,8 @@ def timeline(h: History, path: Path, dpi: int = 80) -> Path | None:
     try:
         plt = pyplot()
     except ImportError:
+        return None
+    if not _t0(h):  # the run broke before the cluster started: no time axis to draw on
         return None
     t0 = _t0(h)
     t1 = h.time("snapshot") or h.time("stopped") or t0 + 1

@@ -4,13 +4,16 @@
    draw the plan from the seed (a new seed is drawn and printed when none is given).
 2. Make the campaign directory (layout: :mod:`hera.campaign.history`), fix the ports, point
    every auditing measure's ``fire_log`` into ``audit/``, and, when the campaign has
-   network faults, start the link proxy and route the nodes' links through it.
+   network faults, start the link proxy and route the nodes' links through it, or (``--links
+   netns``) put every node in a network namespace of its own whose links nftables cuts
+   (:mod:`hera.campaign.netns`).
 3. Start the cluster (``hera up`` into ``<dir>/run``) and the recorder, wait until every
    stream of the spec flows and every sync group has a leader (at most ``settle_s``).
 4. Quiet baseline, the schedule (each fault struck and undone by
    :mod:`hera.campaign.actuators`, journaled), quiet tail.
 5. Snapshot every node's args and status, stop the cluster (SIGTERM, then SIGKILL to
-   anything of the run still alive, which is recorded as a leftover), stop the proxy.
+   anything of the run still alive, which is recorded as a leftover), stop the proxy or
+   remove the namespaces.
 6. Run the checkers (:mod:`hera.campaign.checkers`) and write the report
    (:mod:`hera.campaign.report`). Exit code 0 only when every checker passes.
 
@@ -35,9 +38,9 @@ from dataclasses import replace
 from pathlib import Path
 from typing import IO, Any
 
-from hera.campaign import history, journal
+from hera.campaign import history, journal, netns
 from hera.campaign.actuators import Injector
-from hera.campaign.links import ProxyProcess, node_env, plan_links, write_plan
+from hera.campaign.links import PLAN_FILE, ProxyProcess, node_env, plan_links, write_plan
 from hera.campaign.plan import Planned, make_plan
 from hera.campaign.recorder import Recorder
 from hera.campaign.schema import (
@@ -54,9 +57,15 @@ from hera.launcher import free_ports, node_command
 from hera.plugins import find_measure
 from hera.preflight import check_spec
 from hera.rundirs import new_run_dir
+from hera.security.secret import SECRET_FILE, make_secret
 from hera.spec import ClusterSpec, load_spec
+from hera.topology import host_of
 
 STOP_TIMEOUT_S = 30.0
+LINKS = ("proxy", "netns", "auto")
+"""How network faults are made: the link proxy, nftables in a namespace per node, or
+nftables where this machine allows it (:func:`hera.campaign.netns.problem`) and the proxy
+elsewhere."""
 
 
 def spec_problems(campaign: Campaign, spec: ClusterSpec) -> list[str]:
@@ -218,6 +227,7 @@ class CampaignRun:
         short: bool = False,
         attach: bool = False,
         out: IO[str] | None = None,
+        links: str = "auto",
     ) -> None:
         import sys
 
@@ -238,6 +248,7 @@ class CampaignRun:
                 f"{self.campaign.source}: network faults need a cluster started by the "
                 "campaign (its links run through the link proxy); leave out --attach"
             )
+        self.links = self._links_backend(links, spec, problems)
         if problems:
             raise CampaignError(problems)
         self.seed = seed if seed is not None else random.SystemRandom().randrange(1, 10**6)
@@ -256,6 +267,7 @@ class CampaignRun:
         self.stopping = threading.Event()
         self.times: dict[str, float] = {}
         self.proxy: ProxyProcess | None = None
+        self.netns: netns.Namespaces | None = None
         self.launcher: subprocess.Popen | None = None
         self.client: ClusterClient | None = None
         self.recorder: Recorder | None = None
@@ -265,6 +277,35 @@ class CampaignRun:
         self.settle_error: str | None = None
         self.error: str | None = None
         self.state_dir: Path | None = None
+
+    def _links_backend(self, links: str, spec: ClusterSpec, problems: list[str]) -> str:
+        """``proxy`` or ``netns`` for ``--links``; a problem added when it cannot be."""
+        if links not in LINKS:
+            problems.append(f"--links must be one of {', '.join(LINKS)}, got {links!r}")
+            return "proxy"
+        if not self.campaign.network or links == "proxy":
+            return "proxy"
+        delays = [f.name for f in self.campaign.faults if f.kind == "delay"]
+        if self.campaign.nemesis is not None and self.campaign.nemesis["kinds"].get("delay"):
+            delays.append("[nemesis]")
+        if links == "auto":  # by-hand faults (links = true) may be delays: the proxy does all
+            if delays or self.campaign.links or spec.tls or netns.problem():
+                return "proxy"
+            return "netns"
+        why = netns.problem()
+        if spec.tls:
+            problems.append(
+                f"{spec.source}: [security] tls = true: its certificates name the spec's hosts, "
+                "not the namespaces' addresses: use --links proxy"
+            )
+        if why:
+            problems.append(f"--links netns cannot be used on this machine: {why}")
+        for name in delays:
+            problems.append(
+                f"{self.campaign.source}: {name}: delay faults need the link proxy (nftables "
+                "drops or passes packets, it cannot hold them): use --links proxy"
+            )
+        return "netns"
 
     # -- output -------------------------------------------------------------------------
     def say(self, text: str) -> None:
@@ -283,6 +324,7 @@ class CampaignRun:
             "spec_source": self.spec.source,
             "cluster": self.spec.name,
             "attach": self.attach,
+            "links": self.links if self.campaign.network else None,
             "times": self.times,
             "clock_offset": self.clock_offset,
             "fire_logs": self.fire_logs,
@@ -371,7 +413,7 @@ class CampaignRun:
         spec = self.spec
         if not self.attach:
             n = len(spec.nodes)
-            pairs = n * (n - 1) if self.campaign.network else 0
+            pairs = n * (n - 1) if self.campaign.network and self.links == "proxy" else 0
             unported = len(spec.unported())
             ports = free_ports(spec.host, unported + pairs)
             if unported:
@@ -380,7 +422,17 @@ class CampaignRun:
             if "epoch" not in spec.world:
                 spec = spec.with_world(epoch=time.time())
             spec, self.fire_logs = with_fire_logs(spec, f / history.AUDIT)
-            if self.campaign.network:
+            if self.campaign.network and self.links == "netns":
+                plan = netns.Namespaces.plan([n.name for n in spec.nodes])
+                write_plan(plan, f)
+                self.netns = netns.Namespaces(plan)
+                spec = spec.with_hosts({n: self.netns.addr(n) for n in plan["nodes"]})
+                if spec.auth and not spec.tls and not spec.certs:
+                    # the "hosts" span one machine: they share a secret made here, as the
+                    # hosts of a real spec share a 'hera certs' folder
+                    make_secret(f / "credentials" / SECRET_FILE)
+                    spec = spec.with_security(certs=str(f / "credentials"))
+            elif self.campaign.network:
                 plan = write_plan(plan_links(spec, ports, self.seed), f)
                 self.proxy = ProxyProcess(plan, f / "linkproxy.log")
         self.spec = spec
@@ -395,6 +447,14 @@ class CampaignRun:
             env = node_env(self.proxy.plan_path)
             self.say(
                 f"link proxy up (pid {self.proxy.pid}): every link between nodes runs through it"
+            )
+        if self.netns is not None:
+            self.netns.create()
+            env = node_env(f / PLAN_FILE)
+            self.say(
+                f"{len(self.netns.nodes)} network namespaces on bridge "
+                f"{self.netns.plan['bridge']} ({self.netns.plan['root_addr']}/24): each node "
+                "runs in its own, nftables cuts their links"
             )
         if self.attach:
             run_dir = self.cluster_dir
@@ -426,7 +486,7 @@ class CampaignRun:
             self.view,
             f,
             self.seed,
-            self.proxy,
+            self.proxy or self.netns,
             [f / history.AUDIT / name for name in self.fire_logs],
         )
 
@@ -445,14 +505,14 @@ class CampaignRun:
         import socket
 
         deadline = time.monotonic() + timeout
-        pending = {n.name: n.port for n in self.spec.nodes}
+        pending = {n.name: (host_of(self.spec, n), n.port) for n in self.spec.nodes}
         while pending and time.monotonic() < deadline and not self.stopping.is_set():
             if self.launcher is not None and self.launcher.poll() is not None:
                 return
-            for name, port in list(pending.items()):
+            for name, where in list(pending.items()):
                 with socket.socket() as s:
                     s.settimeout(0.2)
-                    if s.connect_ex((self.spec.host, port)) == 0:
+                    if s.connect_ex(where) == 0:
                         del pending[name]
             time.sleep(0.05)
 
@@ -568,3 +628,5 @@ class CampaignRun:
             if left:
                 self.say(f"{len(left)} processes of the run were still alive: killed them")
         (self.folder / history.LEFTOVERS).write_text(json.dumps(left, indent=1))
+        if self.netns is not None:  # its processes are gone: the namespaces can go
+            self.netns.close()

@@ -57,7 +57,8 @@ KINDS = (
 """Fault kinds: a measure's ``crash`` or ``hang`` (control plane), a node's ``kill``
 (SIGKILL), ``crash_node`` (the node exits on request) or ``pause`` (SIGSTOP for
 ``duration_s``), a ``board`` fault (the simulator's board verb), the network faults
-``partition``, ``loss``, ``delay`` and ``reset`` (link proxy), and a host's clock ``skew``."""
+``partition``, ``loss``, ``delay`` and ``reset`` (link proxy or nftables), and a host's clock
+``skew``."""
 NETWORK = ("partition", "loss", "delay", "reset")
 NEEDS_DURATION = ("pause", "board", "partition", "loss", "delay", "skew")
 INSTANT = ("crash", "hang", "kill", "crash_node")

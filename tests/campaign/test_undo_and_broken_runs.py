@@ -1,0 +1,64 @@
+"""A fault ends when its undoing begins (the journal's stamp), and a campaign whose cluster
+never starts is still checked and reported, with the reason, and exits 1."""
+
+from __future__ import annotations
+
+import json
+import socket
+import time
+
+from campaign_runs import run_campaign
+
+from hera.campaign import journal
+from hera.campaign.actuators import Active, Injector
+from hera.campaign.plan import Planned
+
+
+class SlowLinks:
+    """Links whose rules take ``delay`` s to apply (as nft in several namespaces does)."""
+
+    def __init__(self, delay: float) -> None:
+        self.delay = delay
+        self.requests: list[dict] = []
+
+    def command(self, request: dict) -> dict:
+        time.sleep(self.delay)
+        self.requests.append(request)
+        return {}
+
+
+def test_a_heal_is_journaled_at_the_moment_it_began(tmp_path):
+    links = SlowLinks(0.3)
+    inj = Injector(view=None, folder=tmp_path, seed=1, proxy=links)
+    act = Active(Planned(0, "cut a", "partition", 0.0, 1.0, {}), pairs=[["a", "b"]])
+    before = time.time()
+    inj.heal(act)
+    after = time.time()
+    (end,) = journal.read(tmp_path)
+    assert links.requests == [{"op": "clear", "pairs": [["a", "b"]]}]
+    assert end["event"] == "end" and after - before >= 0.3
+    assert before <= end["t"] <= before + 0.1  # not after the 0.3 s the rule took
+
+
+def test_a_campaign_whose_cluster_cannot_start_is_reported_not_crashed(tmp_path):
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        spec = tmp_path / "busy.toml"
+        spec.write_text(
+            f'[cluster]\nname = "busy"\nbase_port = {port}\n\n[[nodes]]\nname = "n1"\n\n'
+            '[[measures]]\non = ["n1"]\nuse = "counter"\nname = "counter"\nperiod = 0.1\n'
+        )
+        camp = tmp_path / "c.toml"
+        camp.write_text(
+            '[campaign]\nname = "c"\nbaseline_s = 1\ntail_s = 1\n\n[[faults]]\n'
+            'name = "crash it"\nkind = "crash"\ntarget = "n1"\nmeasure = "counter"\n'
+        )
+        code, folder, out = run_campaign(tmp_path, str(spec), str(camp), "--seed", "1")
+    assert code == 1, out
+    assert "Traceback" not in out
+    assert "the run broke" in out and "report: " in out
+    meta = json.loads((folder / "campaign.json").read_text())
+    assert "cluster.json" in meta["error"]  # hera up refused: no cluster to record
+    assert (folder / "report.md").exists() and (folder / "report.html").exists()
