@@ -29,9 +29,12 @@ def test_thesis_ch5_short(tmp_path):
         "power off sonar_2",
     ]
     assert all(f.done for f in h.faults)
-    # the crashed e7 resumed its model from its checkpoint instead of starting cold
-    e7 = h.final["status"]["computer"]["measures"]["track_gyro"]
-    assert e7["restarts"] == 1 and e7["counters"].get("resumed") == 1, e7
+    # the crashed e7 resumed its model from its checkpoint instead of starting cold (its
+    # node's log says so: the node itself may be killed later, as the sync leader)
+    log = (folder / "run" / "logs" / "computer.log").read_text().splitlines()
+    crashed = [i for i, x in enumerate(log) if "track_gyro crashed: InjectedFault" in x]
+    resumed = [i for i, x in enumerate(log) if "track_gyro INFO resumed the model" in x]
+    assert len(crashed) == 1 and resumed and resumed[0] > crashed[0], (crashed, resumed)
     figures = {r["figure"]: r for r in v["figures"].rows}
     measured = [r for r in figures.values() if r["verdict"] == "ok"]
     assert len(measured) >= 4  # killed measure, killed node noticed, paused one, leader kill
