@@ -27,7 +27,9 @@ the same rule.
   refused with a sentence that names the link proxy.
 - ``pass``: the chains emptied.
 
-Every namespace, the bridge and their links are removed at :meth:`Namespaces.close`.
+Every namespace, the bridge and their links are removed at :meth:`Namespaces.close`; what a
+campaign that was itself SIGKILLed left behind, the next campaign in namespaces removes
+(:func:`sweep`: the namespaces' names carry the id of the process that made them).
 """
 
 from __future__ import annotations
@@ -35,12 +37,16 @@ from __future__ import annotations
 import contextlib
 import ipaddress
 import json
+import logging
 import os
 import random
+import re
 import shutil
 import subprocess
 from collections.abc import Iterable, Sequence
 from typing import Any
+
+log = logging.getLogger("hera.campaign.netns")
 
 TABLE = "hera"
 ROOT_OCTET = 254  # the root namespace's address on the bridge: 10.a.b.254
@@ -81,6 +87,42 @@ def problem() -> str | None:
         with contextlib.suppress(RuntimeError):
             _run(["ip", "netns", "del", name])
     return None
+
+
+_MINE = re.compile(r"^hera-c(\d+)-([0-9a-f]{6})-\d+$")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def sweep() -> list[str]:
+    """Remove the namespaces (and their bridges) that campaigns no longer running left
+    behind (a campaign SIGKILLed before it could clean up): those whose name carries the
+    id of a process that is gone. Returns the namespaces removed."""
+    try:
+        listed = _run(["ip", "netns", "list"])
+    except RuntimeError:
+        return []
+    gone, bridges = [], set()
+    for line in listed.splitlines():
+        name = line.split()[0] if line.split() else ""
+        m = _MINE.match(name)
+        if m and not _alive(int(m.group(1))):
+            with contextlib.suppress(RuntimeError):
+                _run(["ip", "netns", "del", name])
+                gone.append(name)
+            bridges.add(f"hb{m.group(2)}")
+    for br in sorted(bridges):
+        with contextlib.suppress(RuntimeError):
+            _run(["ip", "link", "del", br])
+    return gone
 
 
 def _free_subnet(rng: random.Random) -> str:
@@ -141,15 +183,16 @@ class Namespaces:
     def plan(names: Sequence[str], seed: int | None = None) -> dict[str, Any]:
         """Namespace, address and index of every node; the bridge and the root's address, on
         a /24 no address or route of this host overlaps (drawn at random unless ``seed`` is
-        given). Names are short (interface names are at most 15 characters) and carry this
-        process's id, so runs side by side never share one."""
+        given). Interface names are short (at most 15 characters); the namespaces' names
+        carry this process's id (see :func:`sweep`) and a random tag that the bridge's name
+        carries too."""
         if len(names) > MAX_NODES:
             raise ValueError(f"at most {MAX_NODES} nodes in namespaces, the spec has {len(names)}")
         rng = random.Random(seed) if seed is not None else random.SystemRandom()
-        tag = f"{os.getpid() % 100000:05d}{rng.randrange(36**2):03d}"[-7:]
+        tag = f"{rng.randrange(16**6):06x}"
         net = _free_subnet(rng)
         nodes = {
-            name: {"netns": f"hera-{tag}-{i}", "addr": f"{net}.{i}", "index": i}
+            name: {"netns": f"hera-c{os.getpid()}-{tag}-{i}", "addr": f"{net}.{i}", "index": i}
             for i, name in enumerate(names, start=1)
         }
         return {
@@ -170,7 +213,11 @@ class Namespaces:
     # -- making and removing -------------------------------------------------------------
     def create(self) -> None:
         """Make the bridge, every namespace with its link and address, and the empty rule
-        chains. Everything made is removed if a step fails."""
+        chains, after removing what dead campaigns left (:func:`sweep`). Everything made is
+        removed if a step fails."""
+        swept = sweep()
+        if swept:
+            log.warning("removed %d network namespaces left by a campaign that died", len(swept))
         p = self.plan
         try:
             _run(["ip", "link", "add", p["bridge"], "type", "bridge"])

@@ -10,6 +10,7 @@ train with every node in its namespace. Where namespaces or nftables are not ava
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -18,7 +19,7 @@ import pytest
 from campaign_runs import assert_complete_report, assert_passed, run_campaign
 
 from hera.campaign.manual import _network
-from hera.campaign.netns import Namespaces, problem, rule_statements
+from hera.campaign.netns import Namespaces, problem, rule_statements, sweep
 from hera.campaign.runner import CampaignRun
 from hera.campaign.schema import CampaignError
 
@@ -167,6 +168,31 @@ def test_namespaces_and_bridge_are_gone_after_close():
     assert not any(n in listed for n in names)
     bridge = subprocess.run(["ip", "link", "show", ns.plan["bridge"]], capture_output=True)
     assert bridge.returncode != 0
+
+
+def test_what_a_dead_campaign_left_is_swept_and_a_live_ones_is_not():
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()  # a process id that is gone
+    left = Namespaces.plan(["a", "b"], seed=13)
+    for n in left["nodes"].values():
+        n["netns"] = n["netns"].replace(f"-c{os.getpid()}-", f"-c{dead.pid}-")
+    orphan, live = Namespaces(left), Namespaces(Namespaces.plan(["a"], seed=14))
+    orphan.create()
+    try:
+        live.create()  # sweeps first: the orphan's namespaces and bridge go
+        listed = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+        assert not any(n["netns"] in listed for n in left["nodes"].values())
+        assert live.nodes["a"]["netns"] in listed
+        bridge = subprocess.run(["ip", "link", "show", left["bridge"]], capture_output=True)
+        assert bridge.returncode != 0
+        assert sweep() == []  # this process is alive: its namespaces stay
+        assert (
+            live.nodes["a"]["netns"]
+            in subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+        )
+    finally:
+        live.close()
+        orphan.close()
 
 
 def test_a_delay_fault_is_refused_in_namespaces(tmp_path):
