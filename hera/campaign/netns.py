@@ -169,7 +169,7 @@ def rule_statements(mode: str, loss: float) -> tuple[list[str], list[str]]:
 class Namespaces:
     """One network namespace per node on one bridge, and the nftables rules on their links.
 
-    Made from a plan (:meth:`plan`'s output) by the campaign (:meth:`create`), or from the
+    Made from a plan (:meth:`new_plan`'s output) by the campaign (:meth:`create`), or from the
     plan file by ``hera inject`` to set rules on a running campaign (:meth:`from_plan`)."""
 
     def __init__(self, plan: dict[str, Any]) -> None:
@@ -180,7 +180,7 @@ class Namespaces:
 
     # -- the plan ----------------------------------------------------------------------
     @staticmethod
-    def plan(names: Sequence[str], seed: int | None = None) -> dict[str, Any]:
+    def new_plan(names: Sequence[str], seed: int | None = None) -> dict[str, Any]:
         """Namespace, address and index of every node; the bridge and the root's address, on
         a /24 no address or route of this host overlaps (drawn at random unless ``seed`` is
         given). Interface names are short (at most 15 characters); the namespaces' names
@@ -312,7 +312,7 @@ class Namespaces:
             self._nft(ns, "\n".join(lines) + "\n")
 
     def command(self, req: dict[str, Any]) -> dict[str, Any]:
-        """The link proxy's control requests (:meth:`hera.campaign.linkproxy.Proxy.command`):
+        """The link proxy's control requests (:meth:`hera.campaign.linkproxy.LinkProxy.command`):
         ``{"op": "set", "pairs", "mode", "loss"}``, ``{"op": "clear", "pairs"?}``,
         ``{"op": "status"}``. ValueError naming what is wrong (a delay among them)."""
         op = req.get("op")
@@ -338,10 +338,10 @@ class Namespaces:
         return {"pairs": [list(p) for p in pairs], "rule": {"mode": mode, "loss": loss}}
 
     def status(self) -> list[dict[str, Any]]:
-        """Per pair: the packets each side's rules dropped or reset so far, and the rule's
-        statements as nft lists them."""
+        """Per pair: the packets its current rules (both sides') dropped or answered with a
+        reset so far, and how many rules it has (0: it passes)."""
         dropped: dict[tuple[str, str], int] = {}
-        rules: dict[tuple[str, str], list[str]] = {}
+        rules: dict[tuple[str, str], int] = {}
         index = {n["index"]: name for name, n in self.nodes.items()}
         for me, n in self.nodes.items():
             listed = _run(
@@ -357,9 +357,9 @@ class Namespaces:
                 for expr in rule.get("expr", []):
                     if "counter" in expr:
                         dropped[key] = dropped.get(key, 0) + int(expr["counter"]["packets"])
-                rules.setdefault(key, []).append(json.dumps(rule.get("expr", [])))
+                rules[key] = rules.get(key, 0) + 1
         return [
-            {"pair": list(k), "dropped_packets": dropped.get(k, 0), "rules": len(rules.get(k, []))}
+            {"pair": list(k), "dropped_packets": dropped.get(k, 0), "rules": rules.get(k, 0)}
             for k in self._all_pairs_sorted()
         ]
 

@@ -423,7 +423,7 @@ class CampaignRun:
                 spec = spec.with_world(epoch=time.time())
             spec, self.fire_logs = with_fire_logs(spec, f / history.AUDIT)
             if self.campaign.network and self.links == "netns":
-                plan = netns.Namespaces.plan([n.name for n in spec.nodes])
+                plan = netns.Namespaces.new_plan([n.name for n in spec.nodes])
                 write_plan(plan, f)
                 self.netns = netns.Namespaces(plan)
                 spec = spec.with_hosts({n: self.netns.addr(n) for n in plan["nodes"]})

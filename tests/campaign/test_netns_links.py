@@ -76,7 +76,7 @@ def _py(ns: Namespaces | None, node: str | None, code: str, *args: str) -> str:
 @pytest.fixture
 def hosts() -> Iterator[tuple[Namespaces, subprocess.Popen]]:
     """Nodes a, b, c in namespaces; a TCP greeter and a UDP counter on b."""
-    ns = Namespaces(Namespaces.plan(["a", "b", "c"], seed=11))
+    ns = Namespaces(Namespaces.new_plan(["a", "b", "c"], seed=11))
     ns.create()
     server = None
     try:
@@ -158,7 +158,7 @@ def test_hera_inject_sets_rules_from_the_plan_file(hosts, tmp_path):
 
 
 def test_namespaces_and_bridge_are_gone_after_close():
-    ns = Namespaces(Namespaces.plan(["a", "b"], seed=12))
+    ns = Namespaces(Namespaces.new_plan(["a", "b"], seed=12))
     ns.create()
     names = [n["netns"] for n in ns.nodes.values()]
     listed = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
@@ -173,10 +173,10 @@ def test_namespaces_and_bridge_are_gone_after_close():
 def test_what_a_dead_campaign_left_is_swept_and_a_live_ones_is_not():
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()  # a process id that is gone
-    left = Namespaces.plan(["a", "b"], seed=13)
+    left = Namespaces.new_plan(["a", "b"], seed=13)
     for n in left["nodes"].values():
         n["netns"] = n["netns"].replace(f"-c{os.getpid()}-", f"-c{dead.pid}-")
-    orphan, live = Namespaces(left), Namespaces(Namespaces.plan(["a"], seed=14))
+    orphan, live = Namespaces(left), Namespaces(Namespaces.new_plan(["a"], seed=14))
     orphan.create()
     try:
         live.create()  # sweeps first: the orphan's namespaces and bridge go
