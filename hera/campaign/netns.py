@@ -46,6 +46,8 @@ import subprocess
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+from hera.client import pid_alive
+
 log = logging.getLogger("hera.campaign.netns")
 
 TABLE = "hera"
@@ -92,16 +94,6 @@ def problem() -> str | None:
 _MINE = re.compile(r"^hera-c(\d+)-([0-9a-f]{6})-\d+$")
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 def sweep() -> list[str]:
     """Remove the namespaces (and their bridges) that campaigns no longer running left
     behind (a campaign SIGKILLed before it could clean up): those whose name carries the
@@ -114,7 +106,7 @@ def sweep() -> list[str]:
     for line in listed.splitlines():
         name = line.split()[0] if line.split() else ""
         m = _MINE.match(name)
-        if m and not _alive(int(m.group(1))):
+        if m and not pid_alive(int(m.group(1))):
             with contextlib.suppress(RuntimeError):
                 _run(["ip", "netns", "del", name])
                 gone.append(name)
