@@ -14,6 +14,7 @@ import os
 import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import zenoh
 
@@ -86,18 +87,27 @@ def netns_of(node: str, environ: Mapping[str, str] = os.environ) -> str | None:
     """The network namespace that node ``node`` runs in, from the overrides file
     (``{"nodes": {"<node>": {"netns": "<name>"}}}``), or None: the launcher starts such a
     node with ``ip netns exec <name>``. ValueError naming the file when it cannot be read."""
+    ns = (_overrides_of(node, environ) or {}).get("netns")
+    if ns is not None and not isinstance(ns, str):
+        path = environ.get(OVERRIDES_ENV)
+        raise ValueError(f"bus overrides {path}: node {node!r}: netns must be a name, got {ns!r}")
+    return ns
+
+
+def _overrides_of(node: str, environ: Mapping[str, str]) -> dict[str, Any] | None:
+    """The entry for ``node`` in the overrides file ``$HERA_BUS_OVERRIDES`` names (None: no
+    file, or the file does not name it). ValueError naming the file when it cannot be read."""
     path = environ.get(OVERRIDES_ENV)
     if not path:
         return None
     try:
         with open(path) as f:
-            mine = json.load(f)["nodes"].get(node) or {}
-        ns = mine.get("netns")
+            mine = json.load(f)["nodes"].get(node)
+        if mine is not None and not isinstance(mine, dict):
+            raise TypeError(f"node {node!r}: an entry must be a table, got {mine!r}")
+        return mine
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
         raise ValueError(f"bus overrides {path} ({OVERRIDES_ENV}) cannot be used: {e}") from None
-    if ns is not None and not isinstance(ns, str):
-        raise ValueError(f"bus overrides {path}: node {node!r}: netns must be a name, got {ns!r}")
-    return ns
 
 
 def with_overrides(
@@ -107,20 +117,16 @@ def with_overrides(
     names, if set: ``{"nodes": {"<node>": {"connect": [endpoints], "zenoh": {key: value}}}}``
     (``connect`` replaces the node's connect endpoints, ``zenoh`` adds Zenoh config keys).
     A node the file does not name keeps ``config``. ValueError naming the file otherwise."""
-    path = environ.get(OVERRIDES_ENV)
-    if not path:
+    mine = _overrides_of(node, environ)
+    if mine is None:
         return config
     try:
-        with open(path) as f:
-            data = json.load(f)
-        mine = data["nodes"].get(node)
-        if mine is None:
-            return config
         connect = tuple(mine.get("connect", config.connect))
         extra = {**config.extra, **dict(mine.get("zenoh", {}))}
-        return replace(config, connect=connect, extra=extra)
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+    except (TypeError, ValueError) as e:
+        path = environ.get(OVERRIDES_ENV)
         raise ValueError(f"bus overrides {path} ({OVERRIDES_ENV}) cannot be used: {e}") from None
+    return replace(config, connect=connect, extra=extra)
 
 
 _LOGGING = False

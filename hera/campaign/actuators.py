@@ -61,13 +61,13 @@ class Injector:
         view: ClusterView,
         folder: Path,
         seed: int,
-        proxy: Links | None = None,
+        links: Links | None = None,
         fire_logs: list[Path] | None = None,
     ) -> None:
         self.view = view
         self.folder = Path(folder)
         self.seed = seed
-        self.proxy = proxy
+        self.links = links
         self.fire_logs = list(fire_logs or [])
 
     # -- helpers ------------------------------------------------------------------------
@@ -86,13 +86,13 @@ class Injector:
         return pid
 
     def _links(self, request: dict[str, Any]) -> dict[str, Any]:
-        if self.proxy is None:
+        if self.links is None:
             raise FaultFailed(
                 "network faults need the campaign's links: the cluster must be started by the "
                 "campaign (not attached to)"
             )
         try:
-            return self.proxy.command(request)
+            return self.links.command(request)
         except (OSError, ValueError, RuntimeError) as e:  # RuntimeError: an nft command
             raise FaultFailed(f"links: {e}") from None
 

@@ -154,7 +154,7 @@ def _network(
         req = {"op": "set", "pairs": pairs, "mode": "reset"}
     if plan.get("backend") == "netns":  # nftables rules in the nodes' namespaces
         try:
-            return Namespaces.from_plan(plan).command(req)
+            return Namespaces(plan).command(req)
         except RuntimeError as e:
             raise LookupError(
                 f"the campaign's namespaces cannot take the rule ({e}): is it running?"

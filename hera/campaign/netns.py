@@ -162,7 +162,8 @@ class Namespaces:
     """One network namespace per node on one bridge, and the nftables rules on their links.
 
     Made from a plan (:meth:`new_plan`'s output) by the campaign (:meth:`create`), or from the
-    plan file by ``hera inject`` to set rules on a running campaign (:meth:`from_plan`)."""
+    plan file by ``hera inject`` to set rules on a running campaign (rules need nothing
+    else)."""
 
     def __init__(self, plan: dict[str, Any]) -> None:
         self.plan = plan
@@ -194,10 +195,6 @@ class Namespaces:
             "root_addr": f"{net}.{ROOT_OCTET}",
             "nodes": nodes,
         }
-
-    @classmethod
-    def from_plan(cls, plan: dict[str, Any]) -> Namespaces:
-        return cls(plan)
 
     def addr(self, node: str) -> str:
         return self.nodes[node]["addr"]

@@ -114,7 +114,7 @@ def test_rules_cut_reset_and_heal_one_pair_only(hosts):
     ns.command({"op": "set", "pairs": [["a", "b"]], "mode": "blackhole"})
     assert _dial(ns, "a") == "TimeoutError"  # the SYN goes nowhere: a cut cable
     assert _dial(ns, "c") == "hi" and _dial(ns, None) == "hi"  # nobody else, tools neither
-    again = Namespaces.from_plan(json.loads(json.dumps(ns.plan)))  # stateless: from the plan
+    again = Namespaces(json.loads(json.dumps(ns.plan)))  # stateless: from the plan
     again.command({"op": "set", "pairs": [["b", "a"]], "mode": "reset"})  # replaces the cut
     assert _dial(ns, "a") == "ConnectionRefusedError"  # answered by a reset
     counted = {tuple(p["pair"]): p["dropped_packets"] for p in ns.status()}

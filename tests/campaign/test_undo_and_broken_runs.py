@@ -29,7 +29,7 @@ class SlowLinks:
 
 def test_a_heal_is_journaled_at_the_moment_it_began(tmp_path):
     links = SlowLinks(0.3)
-    inj = Injector(view=None, folder=tmp_path, seed=1, proxy=links)
+    inj = Injector(view=None, folder=tmp_path, seed=1, links=links)
     act = Active(Planned(0, "cut a", "partition", 0.0, 1.0, {}), pairs=[["a", "b"]])
     before = time.time()
     inj.heal(act)
