@@ -17,7 +17,12 @@ where it sits); heights are of that point, in m; angles in rad. The ``plane`` ki
 each range as d = h / (cos r cos p) - x tan p / cos r + y tan r (:mod:`.plane`); pitch and
 roll revert to level with the time constant ``tilt_tau`` (the seed's board is "held
 approximately parallel to the desk"; it also bounds the angle two sensors cannot see),
-driven by ``q_tilt`` (rad^2/s).
+driven by ``q_tilt`` (rad^2/s, per mode). A held board's tilt drifts a little (1e-3 in the
+still mode: roll, seen over the 2 cm between the satellites' row and the centre, changes a
+range by 2 mm at 6 deg, too little for the tilted mode's likelihood to win, so the still mode
+must learn it itself), and a board moved fast stays roughly level (3e-3: about 2.6 deg over a
+0.7 s move; a freer tilt there lets the tilt wander on every move and the still segments
+after it inherit the wrong tilt, measured: still RMSE tails of 3.7 mm).
 
 ``sigma_j`` may be one value or one per mode, 0 meaning a board held still (velocity and
 acceleration zero, the height drifting by ``q_still`` m^2/s): with several modes the filter
@@ -33,7 +38,8 @@ Beyond the seed, every kind:
 - fuses only readings whose status is valid (``valid_statuses``, default [0]);
 - gates each reading with a chi-square test (``gate``, probability, one degree of freedom);
   when ``relock`` readings in a row are gated out the filter itself has lost the board (a
-  move faster than its model): it restarts from the reading (counted in ``relocks``);
+  move faster than its model): it restarts from the reading with the board's motion unknown
+  (``plane``: :data:`RELOCK_SPREAD`; counted in ``relocks``);
 - notices a sensor that is stuck, dead, or keeps failing the gate, stops fusing it and says
   so (:mod:`.health`): the output's ``faulty`` mask and the counters;
 - starts from the first valid reading (the seed starts at 0.05 m whatever the height).
@@ -64,6 +70,12 @@ MAX_STEPS = 500
 STILL_VAR = 1e-12
 """Variance left on a still board's velocity and acceleration (the filter keeps P positive
 definite)."""
+RELOCK_SPREAD = {"plane": (0.5, 3.0)}
+"""(m/s, m/s^2): the velocity and acceleration spread of ``plane`` after a relock (a hand's
+move: the filter lost the board because it moved faster than modelled, so its motion is
+unknown; its fast mode then learns it). The seed's single-model kinds restart from ``var0``
+as before: with the seed's stiff sigmas a wide spread leaves them wild (measured: ``ca``
+overshooting by 0.5 m on 10 Hz readings)."""
 DEFAULT_SIGMA_J = {"ca": 0.1, "fused": 1.0, "plane": (0.0, 0.0, 2.0, 30.0)}
 """m/s^3: the seed's task 3 and task 4 values; four modes for ``plane`` (0: still)."""
 
@@ -91,7 +103,7 @@ class TofHeight:
     Settings: ``kind``; ``names`` (input names, ["vl53l1"]); ``sigma`` (m, range noise: R =
     sigma^2, seed 0.003); ``sigma_a`` (m/s^2, cv: seed task 2's 0.1); ``sigma_j`` (m/s^3,
     one or one per mode, 0 a still mode; default :data:`DEFAULT_SIGMA_J`); ``q_still``
-    (m^2/s); ``q_tilt`` (rad^2/s, plane, one or one per mode: [1e-7, 0.02, 1e-3, 0.05]);
+    (m^2/s); ``q_tilt`` (rad^2/s, plane, one or one per mode: [1e-3, 0.02, 1e-3, 3e-3]);
     ``tilt_tau`` (s, 10); ``switch_rates`` (1/s, one per mode: [0.5, 0.5, 0.5, 3.0]); ``dt``
     (s, predict step, 0.01); ``var0`` (initial variances of a and v: the seed's 1e-3);
     ``tilt_var0`` (rad^2); ``gate`` (probability, None: no gate); ``relock``;
@@ -108,7 +120,7 @@ class TofHeight:
         sigma_a: float = 0.1,
         sigma_j: float | Sequence[float] | None = None,
         q_still: float = 1e-8,
-        q_tilt: float | Sequence[float] = (1e-7, 0.02, 1e-3, 0.05),
+        q_tilt: float | Sequence[float] = (1e-3, 0.02, 1e-3, 3e-3),
         tilt_tau: float = 10.0,
         switch_rates: Sequence[float] = (0.5, 0.5, 0.5, 3.0),
         dt: float = 0.01,
@@ -305,6 +317,9 @@ class TofHeight:
         if self.kind == "plane":
             h = (d - range_of(0.0, *tilt, *mount)) * math.cos(tilt[0]) * math.cos(tilt[1])
         x0, P0 = self._initial(h, tilt)
+        if self.kind in RELOCK_SPREAD:
+            spread_v, spread_a = RELOCK_SPREAD[self.kind]
+            P0[0, 0], P0[1, 1] = spread_a**2, spread_v**2
         if self.kind == "plane":
             P = self.imm.P
             P0[3:, 3:] = P[3:, 3:]

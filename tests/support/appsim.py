@@ -71,13 +71,16 @@ def tof_samples(
     seed: int = 1,
     faults: Sequence[Fault] = (),
     model: Mapping[str, Any] | None = None,
+    phases: Mapping[str, float] | None = None,
 ) -> list[tuple[float, Sample]]:
     """(time available to a fusion node, sample) of three ``vl53l1`` sensors on nodes
-    ``tof_<sensor>`` at 10 Hz with random phases, in availability order."""
+    ``tof_<sensor>`` at 10 Hz, in availability order; each sensor's phase (s) from
+    ``phases``, random without it."""
     boards = tof_boards(world, seed, model)
     clock = boards[SENSORS[0]].clock_cell
     rng = np.random.default_rng(seed)
     phase = {s: float(rng.uniform(0.0, 0.1)) for s in SENSORS}
+    phase.update(phases or {})
     events = sorted(faults, key=lambda f: f.at)
     out = []
     for s in SENSORS:
@@ -225,6 +228,11 @@ def with_true_bias(samples: Sequence[Sample], board: Any) -> list[Sample]:
 
 
 def main(argv: Sequence[str]) -> int:
+    """``tof N``, ``stuck N``, ``draws N [WORLD_SEED [SECONDS]] [staggered]``, ``tilt N``,
+    ``drift N``: the offline tables of the README."""
+    from hera.models.tof.app import desk_truth, score_height
+    from hera.models.tof.height import TofHeight
+
     what = argv[0] if argv else "tof"
     seeds = range(int(argv[1]) if len(argv) > 1 else 5)
     if what == "tof":
@@ -238,10 +246,28 @@ def main(argv: Sequence[str]) -> int:
                 cells = [r[x] for x in ("rmse_mm", "still_mm", "settle_mm", "fast_mm", "lag_ms")]
                 cells += [r["max_mm"], r.get("tilt_deg") or float("nan")]
                 print(f"{seed:>7} {k:>7} " + " ".join(f"{c:7.2f}" for c in cells))
+    elif what == "draws":
+        # one world, many noise draws: the spread a single live run samples from
+        world = {"scenario": "desk", "seed": int(argv[2]) if len(argv) > 2 else 0}
+        seconds = float(argv[3]) if len(argv) > 3 else 60.0
+        phases = {"left": 0.0, "centre": 0.0333, "right": 0.0667} if "staggered" in argv else None
+        still, rmse = [], []
+        for draw in seeds:
+            feed = [
+                x for x in tof_samples(world, seconds, 100 + draw, phases=phases) if x[0] >= 2.0
+            ]
+            s = run_model(TofHeight(kind="plane"), feed, duration=seconds)
+            s = Series(s.name, s.node, s.columns, s.t[s.t >= 2.0], s.values[s.t >= 2.0])
+            r = score_height(s, desk_truth(world), EvalOptions(after=1.0))
+            still.append(r["still_mm"])
+            rmse.append(r["rmse_mm"])
+        for name, v, target in (("still", still, 1.5), ("rmse", rmse, 4.0)):
+            print(
+                f"{name:>5} mm over {len(v)} draws: mean {np.mean(v):.2f} p90 "
+                f"{np.percentile(v, 90):.2f} worst {np.max(v):.2f}, "
+                f"over {target}: {sum(x > target for x in v)}"
+            )
     elif what == "stuck":
-        from hera.models.tof.app import desk_truth, score_height
-        from hera.models.tof.height import TofHeight
-
         for seed in seeds:
             for sensor, kind in (("left", "stuck"), ("centre", "stuck"), ("right", "dropout")):
                 world = {"scenario": "desk", "seed": seed}
