@@ -148,6 +148,11 @@ FUSION_ARGS = Table(
 )
 
 
+ARRIVAL_ONLY = ("backlog", "reorder_s", "publish")
+"""Fusion args that only arrival mode reads: refused in period mode rather than ignored."""
+PERIOD_ONLY = ("max_age",)
+"""Fusion args that only period mode reads: refused in arrival mode rather than ignored."""
+
 CHECKPOINT_S = 1.0
 """How often (s, at most) a fusion measure copies its model's state for a restart."""
 
@@ -228,6 +233,14 @@ class FusionMeasure(Measure):
         has ``check(settings)`` (a cheap check of the values, raising ValueError or
         TypeError with one sentence), the settings' values, before anything starts."""
         problems = super().check_args(args, where)
+        mode = args.get("mode", "period")
+        for key in ARRIVAL_ONLY if mode == "period" else PERIOD_ONLY if mode == "arrival" else ():
+            if key in args:
+                other = "arrival" if mode == "period" else "period"
+                problems.append(
+                    f"{where}: {key} is for {other} mode and does nothing in {mode} mode "
+                    f'(set mode = "{other}" or leave {key} out)'
+                )
         model = args.get("model", {})
         known = cls.settings()
         if isinstance(model, Mapping) and known is not None:

@@ -30,7 +30,11 @@ def spec_problems(spec: ClusterSpec) -> list[str]:
         if app is not None:
             apps.setdefault(app.name, app)
         problems.extend(cls.check_args(m.args, f"{where}: args"))
-        resolved = m.resolve(cls)
+        try:  # the class's defaults may break a rule (an offset past its period)
+            resolved = m.resolve(cls)
+        except ValueError as e:
+            problems.append(f"{where}: {str(e).removeprefix(f'measure {m.name!r}: ')}")
+            continue
         if resolved.sync and resolved.group not in groups:
             problems.append(
                 f"{where}: it is synchronised (sync = true) in group {resolved.group!r}, but "

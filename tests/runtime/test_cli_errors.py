@@ -69,6 +69,26 @@ CASES = [
             "[[nodes]]: a spec needs at least one [[nodes]] entry",
         ],
     ),
+    (
+        HEAD
+        + '[[nodes.measures]]\nuse = "track_radius"\nargs = { publish = "every" }\n'
+        + '[[nodes.measures]]\nuse = "track_gyro"\nargs = { mode = "arrival", max_age = 1 }\n',
+        [
+            "measure 'track_radius' of node 'a': args: publish is for arrival mode and does "
+            'nothing in period mode (set mode = "arrival" or leave publish out)',
+            "measure 'track_gyro' of node 'a': args: max_age is for period mode and does "
+            'nothing in arrival mode (set mode = "period" or leave max_age out)',
+        ],
+    ),
+    (
+        HEAD
+        + '[[nodes.measures]]\nuse = "counter"\noffset = 0.5\n'
+        + '[[nodes.measures]]\nuse = "sonar"\noffset = 0.01\n',
+        [
+            "measure 'counter' of node 'a': offset must be below the period (0.1 s), got 0.5",
+            "measure 'sonar' of node 'a': offset is for unsynchronised measures (sync = true)",
+        ],
+    ),
     ("[cluster\n", ["invalid TOML: "]),
     (
         HEAD + '[world]\nscenario = "train"\nradius_m = 0.6\n[[nodes.measures]]\nuse = "nav"\n',
