@@ -44,10 +44,16 @@ def killed_run(tmp_path_factory):
     try:
         c.connect(timeout=60)
 
-        def published() -> int:
-            return c.status("computer")["measures"]["position3d"]["published"]
+        def published(node: str = "computer") -> int:
+            reply = c.client.query(node, "status", timeout=0.5).get(node)
+            return -1 if reply is None else reply["measures"]["position3d"]["published"]
 
-        wait_for(lambda: published() > 280, 90, "14 s of position estimates")
+        # both model nodes: the test counts each one's estimates before the hang
+        wait_for(
+            lambda: min(published(n) for n in ("computer", "sonar_x")) > 280,
+            90,
+            "14 s of position estimates on both model nodes",
+        )
         victim = c.pid("sonar_z")  # asked first: the signal follows the clock read at once
         t_stop = time.time()
         os.kill(victim, signal.SIGSTOP)
