@@ -229,7 +229,7 @@ def with_true_bias(samples: Sequence[Sample], board: Any) -> list[Sample]:
 
 def main(argv: Sequence[str]) -> int:
     """``tof N``, ``stuck N``, ``draws N [WORLD_SEED [SECONDS]] [staggered]``, ``tilt N``,
-    ``drift N``: the offline tables of the README."""
+    ``drift N``, ``pushes N [WORLD_SEED]``: the offline tables of the README."""
     from hera.models.tof.app import desk_truth, score_height
     from hera.models.tof.height import TofHeight
 
@@ -283,6 +283,27 @@ def main(argv: Sequence[str]) -> int:
                     f"seed {seed} {sensor:>6} {kind:>7}: reported after "
                     f"{s.t[hit[0]] - 20.0:.2f} s, RMSE after {r['rmse_mm']:.2f} mm"
                 )
+    elif what == "pushes":
+        # many boards (biases, scales, noise) of one world: the tilt test's 42 s window
+        from hera.models.tilt.app import robot_truth, score_tilt
+        from hera.models.tilt.tilt import Tilt2D
+
+        world = {"scenario": "balancing", "seed": int(argv[2]) if len(argv) > 2 else 0}
+        got: dict[str, list[float]] = {k: [] for k in ("split", "ekf", "ukf", "bias")}
+        for board in seeds:
+            samples, _ = imu_samples(world, 42.0, 100 + board)
+            feed = [(x.t, x) for x in samples]
+            for kind, v in got.items():
+                r = score_tilt(
+                    run_model(Tilt2D(kind=kind), feed, None), robot_truth(world), EvalOptions()
+                )
+                v.append(r["push_deg"])
+        for kind, v in got.items():
+            print(
+                f"{kind:>5} push RMSE deg over {len(v)} boards: mean {np.mean(v):.3f} p90 "
+                f"{np.percentile(v, 90):.3f} worst {np.max(v):.3f}, "
+                f"over 0.5: {sum(x > 0.5 for x in v)}"
+            )
     elif what in ("tilt", "drift"):
         from hera.models.tilt.app import robot_truth, score_tilt
         from hera.models.tilt.tilt import Tilt2D
