@@ -107,6 +107,8 @@ def sweep() -> list[str]:
         name = line.split()[0] if line.split() else ""
         m = _MINE.match(name)
         if m and not pid_alive(int(m.group(1))):
+            with contextlib.suppress(RuntimeError):  # the pair first, as in close()
+                _run(["ip", "link", "del", f"hv{m.group(2)}{name.rsplit('-', 1)[1]}"])
             with contextlib.suppress(RuntimeError):
                 _run(["ip", "netns", "del", name])
                 gone.append(name)
@@ -249,8 +251,17 @@ class Namespaces:
         return "\n".join(lines) + "\n"
 
     def close(self) -> None:
-        """Remove every namespace and the bridge made here (their veth links go with them).
-        The processes in them must be gone first."""
+        """Remove every link, namespace and the bridge made here; when it returns, their
+        names are free again. The processes in the namespaces must be gone first.
+
+        Each veth pair is deleted explicitly, before its namespace: ``ip netns del`` only
+        unmounts the namespace, and the kernel tears down its devices (and with them the
+        outer end of the pair) later, in its cleanup work, so a plan made again at once
+        with the same names found ``File exists``."""
+        for n in self.nodes.values():
+            if n["netns"] in self.created:
+                with contextlib.suppress(RuntimeError):
+                    _run(["ip", "link", "del", f"{self.plan['veth']}{n['index']}"])
         for ns in self.created:
             with contextlib.suppress(RuntimeError):
                 _run(["ip", "netns", "del", ns])

@@ -51,8 +51,9 @@ class Hosts:
 
     def __init__(self, networks: Sequence[Sequence[int]], tag: str | None = None) -> None:
         """``networks[k]`` lists the hosts (1-based) on network k."""
-        self.tag = tag or f"{os.getpid() % 10000}{random.randrange(100):02d}"
-        self.octet = 100 + random.randrange(100)
+        rng = random.SystemRandom()  # not the module's generator, which a test may seed
+        self.tag = tag or f"{os.getpid() % 10000}{rng.randrange(100):02d}"
+        self.octet = 100 + rng.randrange(100)
         self.hosts = sorted({h for net in networks for h in net})
         self.networks = [list(net) for net in networks]
         self.procs: list[subprocess.Popen] = []
@@ -70,12 +71,12 @@ class Hosts:
                 for h in net:
                     inner, outer = f"e{k}", f"v{self.tag}{k}{h}"[:15]
                     _ip("link", "add", outer, "type", "veth", "peer", "name", inner)
+                    self.links[h].append(outer)
                     _ip("link", "set", inner, "netns", self.ns(h))
                     _ip("link", "set", outer, "master", br)
                     _ip("link", "set", outer, "up")
                     _ip("-n", self.ns(h), "addr", "add", f"{self.addr(h, k)}/24", "dev", inner)
                     _ip("-n", self.ns(h), "link", "set", inner, "up")
-                    self.links[h].append(outer)
         except BaseException:
             self.close()
             raise
@@ -134,6 +135,10 @@ class Hosts:
             except subprocess.TimeoutExpired:
                 os.killpg(p.pid, signal.SIGKILL)
                 p.wait(5)
+        # the pairs first: after 'netns del' the kernel removes a namespace's devices (and
+        # the outer ends) only later, and a next Hosts with the same tag would collide
+        for link in (li for h in self.hosts for li in self.links[h]):
+            subprocess.run(["ip", "link", "del", link], capture_output=True, timeout=10)
         for h in self.hosts:
             subprocess.run(["ip", "netns", "del", self.ns(h)], capture_output=True, timeout=10)
         for br in self.bridges:
