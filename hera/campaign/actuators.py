@@ -51,6 +51,14 @@ class Active:
     undo: dict[str, Any] = field(default_factory=dict)
     stop: threading.Event = field(default_factory=threading.Event)
     thread: threading.Thread | None = None
+    began: tuple[float, float] | None = None  # the clocks just before it acted
+
+    def acting(self) -> None:
+        """Stamp the moment the fault acts: called right before the signal, request or
+        rule, after its target was found (and, for a kill at a firing, the firing came).
+        The cluster may notice the fault within a millisecond, before a journal line
+        written after the act could be stamped."""
+        self.began = journal.now()
 
 
 class Injector:
@@ -122,6 +130,7 @@ class Injector:
         journal.append(
             self.folder,
             "start",
+            act.began,
             index=p.index,
             name=p.name,
             kind=p.kind,
@@ -139,17 +148,22 @@ class Injector:
             act.nodes = [resolve(str(p.get("target")), self.view, rng)]
         node = act.nodes[0] if act.nodes else None
         if k in ("crash", "hang"):
+            act.acting()
             self._ask(node, "inject", {"fault": k, "measure": p.get("measure")})
         elif k == "crash_node":
+            act.acting()
             self._ask(node, "inject", {"fault": "crash_node"})
         elif k == "kill":
             extra = {}
             if p.get("when") == "firing":
                 extra = self._wait_for_firing(FIRING_WAIT_S)
-            os.kill(self._pid(node), signal.SIGKILL)
+            pid = self._pid(node)
+            act.acting()
+            os.kill(pid, signal.SIGKILL)
             return extra
         elif k == "pause":
             pid = self._pid(node)
+            act.acting()
             os.kill(pid, signal.SIGSTOP)
             act.undo["pid"] = pid
         elif k == "board":
@@ -159,14 +173,17 @@ class Injector:
             req = {"board": board, "fault": p.get("fault"), **p.get("params", {})}
             if p.duration:
                 req["duration"] = p.duration
+            act.acting()
             self._ask(node, "board", req)
         elif k == "skew":
+            act.acting()
             self._ask(node, "clock", {"skew_s": p.get("skew_s")})
         elif k == "partition":
             groups = resolve_groups(p.get("groups"), self.view, rng)
             act.nodes = sorted({n for g in groups for n in g})
             act.pairs = cut_pairs(groups)
             act.undo["groups"] = groups
+            act.acting()
             if p.get("flap_on_s"):
                 act.thread = threading.Thread(target=self._flap, args=(act,), daemon=True)
                 act.thread.start()
@@ -184,6 +201,7 @@ class Injector:
                 rule.update(delay_ms=p.get("delay_ms", 0.0), jitter_ms=p.get("jitter_ms", 0.0))
             else:
                 rule["mode"] = "reset"
+            act.acting()
             self._links(rule)
         else:  # pragma: no cover - the schema knows every kind
             raise FaultFailed(f"unknown fault kind {k!r}")
@@ -196,8 +214,9 @@ class Injector:
         flaps = 0
         while not act.stop.is_set():
             try:
+                began = journal.now()
                 self._links({"op": "set", "pairs": act.pairs, "mode": "blackhole"})
-                journal.append(self.folder, "flap", index=p.index, state="cut")
+                journal.append(self.folder, "flap", began, index=p.index, state="cut")
                 if act.stop.wait(on):
                     break
                 began = journal.now()

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from hera.campaign.history import FaultRecord, Firing, History, Stream
+from hera.campaign.history import LOG_RESOLUTION_S, FaultRecord, Firing, History, Stream
 
 IN_FLIGHT = 0.005
 """Seconds a sample may be on its way (loopback): arrivals this soon after a fault are of
@@ -167,18 +167,16 @@ def detect(h: History, f: FaultRecord) -> float | None:
     if f.kind in ("kill", "pause", "crash_node"):
         watched = {(o, f.nodes[0]) for o in _names(h) if o != f.nodes[0]}
         t0 = effect_time(h, f)
-        for e in h.log:
-            if e.kind == "peer_down" and t0 <= e.t <= t0 + 15.0 and (e.node, e.subject) in watched:
-                return e.t - t0
-        return None
+        hi = t0 + 15.0
     elif f.kind in ("partition", "reset"):
         watched = {(a, b) for a, b in f.pairs} | {(b, a) for a, b in f.pairs}
+        t0, hi = f.start, (f.until or f.start) + 15.0
     else:
         return None
-    hi = (f.until or f.start) + 15.0
+    lo = t0 - LOG_RESOLUTION_S  # a line stamped in the millisecond the fault struck
     for e in h.log:
-        if e.kind == "peer_down" and f.start <= e.t <= hi and (e.node, e.subject) in watched:
-            return e.t - f.start
+        if e.kind == "peer_down" and lo < e.t <= hi and (e.node, e.subject) in watched:
+            return max(0.0, e.t - t0)
     return None
 
 

@@ -289,6 +289,9 @@ PATTERNS = (
 )
 
 
+LOG_RESOLUTION_S = 0.001  # a log line's stamp is its time cut to the millisecond
+
+
 def parse_log_line(line: str) -> LogEvent | None:
     """The :class:`LogEvent` of one node log line, or None if it is not one."""
     m = LINE.match(line)

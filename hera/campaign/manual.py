@@ -76,6 +76,7 @@ def inject(
     folder = campaign_dir(run_dir) if run_dir is not None else None
     if client.spec is not None and node != "*":
         client.spec.node(node)  # an unknown node lists the known ones
+    began = journal.now()  # before acting: the cluster may notice within a millisecond
     if fault in NETWORK:
         if client.spec is None:
             raise ValueError("network faults need the cluster's run directory on this host")
@@ -99,6 +100,7 @@ def inject(
         journal.append(
             folder,
             "start",
+            began,
             index=-1,
             name=f"by hand: {fault} {node} {value or ''}".strip(),
             kind=fault,

@@ -15,7 +15,7 @@ import time
 import pytest
 from campaign_synth import T0, Synth, steady
 
-from hera.campaign import checkers
+from hera.campaign import analysis, checkers
 from hera.models.train.app import train_truth
 
 CAMPAIGN = {
@@ -249,6 +249,28 @@ PLANTED = [
 def test_each_checker_fails_on_its_planted_fault(tmp_path, checker, edits):
     v = verdicts(clean(tmp_path, **edits))
     assert not v[checker].passed, v[checker].summary
+
+
+def test_a_kill_noticed_in_its_own_millisecond_is_detected_at_once(tmp_path):
+    """Log lines are stamped to the millisecond, cut: a 'peer down' written 0.3 ms after a
+    kill at .0005 reads .000, before the kill. It is still the detection (CI once took the
+    next 'peer down' of that node, 8.9 s later at the run's end, and failed the figure)."""
+    struck = KILL_AT + 0.0005
+
+    def noticed_at_once(s: Synth) -> None:
+        for obs in ("b", "c"):
+            (s.dir / "run" / "logs" / f"{obs}.log").write_text("")
+            s.log(obs, 0.0, "hera.node", f"node {obs} up on tcp/127.0.0.1:7001 with 1 measures")
+            s.log(obs, struck + 0.0003, "hera.peers", "peer a down")
+            s.log(obs, BACK_AT - 0.2, "hera.peers", "peer a up")
+            s.log(obs, KILL_AT + 8.9, "hera.peers", "peer a down")
+        s.fault("kill", struck, nodes=["a"], target="a", name="kill a")
+
+    s = clean(tmp_path, faults=False, then=[noticed_at_once])
+    h = s.load()
+    assert 0.0 <= analysis.detect(h, h.faults[0]) < 0.001
+    v = verdicts(s)
+    assert v["figures"].passed, v["figures"].summary
 
 
 def test_a_new_incarnation_may_start_its_seqs_again(tmp_path):

@@ -114,7 +114,7 @@ class Synth:
         """A line of ``node``'s log at ``T0 + t``."""
         when = T0 + t
         stamp = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(when))
-        ms = int(round((when % 1) * 1000)) % 1000
+        ms = int((when % 1) * 1000)  # cut, as logging stamps its lines
         with open(self.dir / "run" / "logs" / f"{node}.log", "a") as f:
             f.write(f"{stamp},{ms:03d} {node} {logger} {level} {text}\n")
 
