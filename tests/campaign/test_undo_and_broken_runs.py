@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import socket
 import time
+from types import SimpleNamespace
 
 from campaign_runs import run_campaign
 
@@ -38,6 +39,24 @@ def test_a_heal_is_journaled_at_the_moment_it_began(tmp_path):
     assert links.requests == [{"op": "clear", "pairs": [["a", "b"]]}]
     assert end["event"] == "end" and after - before >= 0.3
     assert before <= end["t"] <= before + 0.1  # not after the 0.3 s the rule took
+
+
+def test_a_strike_is_journaled_at_the_moment_it_acted(tmp_path):
+    """The start is stamped before the rule goes in, not after: a cluster may notice a
+    fault within a millisecond, before a stamp taken after the act (CI once saw every peer
+    log a kill 2.7 ms before the kill's journaled start)."""
+    links = SlowLinks(0.3)
+    spec = SimpleNamespace(nodes=[SimpleNamespace(name="a"), SimpleNamespace(name="b")])
+    inj = Injector(view=SimpleNamespace(spec=spec), folder=tmp_path, seed=1, links=links)
+    planned = Planned(0, "cut a", "partition", 0.0, 1.0, {"groups": [["a"], ["others"]]})
+    before = time.time()
+    act = inj.strike(planned)
+    after = time.time()
+    (start,) = journal.read(tmp_path)
+    assert act is not None and act.pairs == [["a", "b"]]
+    assert links.requests == [{"op": "set", "pairs": [["a", "b"]], "mode": "blackhole"}]
+    assert start["event"] == "start" and after - before >= 0.3
+    assert before <= start["t"] <= before + 0.1  # not after the 0.3 s the rule took
 
 
 def test_a_campaign_whose_cluster_cannot_start_is_reported_not_crashed(tmp_path):
