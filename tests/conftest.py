@@ -8,6 +8,16 @@ from pathlib import Path
 import pytest
 from harness import Cluster, cluster_env
 
+SLOW_TIMEOUT_S = 1800
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """A ``slow`` test is a long campaign (the full nemesis runs 11 minutes): it gets
+    ``SLOW_TIMEOUT_S``, not the 300 s of the configuration, unless it names its own."""
+    for item in items:
+        if item.get_closest_marker("slow") and not item.get_closest_marker("timeout"):
+            item.add_marker(pytest.mark.timeout(SLOW_TIMEOUT_S))
+
 
 @pytest.fixture
 def cluster(tmp_path: Path) -> Iterator[Callable[..., Cluster]]:
