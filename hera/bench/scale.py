@@ -34,6 +34,7 @@ from typing import Any
 
 import zenoh
 
+from hera.bench.latency import LatencyHistogram
 from hera.client import ClusterClient
 from hera.launcher import node_command
 from hera.measure import Measure, MeasureContext
@@ -82,7 +83,7 @@ class Reader(Measure):
         self.first: dict[tuple[str, str], int] = {}
         self.last: dict[tuple[str, str], int] = {}
         self.received = 0
-        self.latency: list[float] = []
+        self.latency = LatencyHistogram()  # O(1) a sample: see hera.bench.latency
         self.lock = threading.Lock()
         ctx.store.add_listener(self._on_sample)
 
@@ -94,17 +95,17 @@ class Reader(Measure):
             self.first.setdefault(key, s.seq)
             self.last[key] = s.seq
             self.received += 1
-            self.latency.append(s.arrival_wall - s.t)
+            self.latency.add(s.arrival_wall - s.t)
 
     def measure(self) -> None:
         with self.lock:
-            lat = sorted(self.latency)
             expected = sum(self.last[k] - self.first[k] + 1 for k in self.last)
-            c = self.ctx.counters
-            c["received"], c["expected"] = self.received, expected
-            if lat:
-                c["p50_ms"] = 1e3 * lat[len(lat) // 2]
-                c["p99_ms"] = 1e3 * lat[min(len(lat) - 1, int(0.99 * len(lat)))]
+            received = self.received
+            p50, p99 = self.latency.percentile(0.5), self.latency.percentile(0.99)
+        c = self.ctx.counters
+        c["received"], c["expected"] = received, expected
+        if p50 is not None and p99 is not None:
+            c["p50_ms"], c["p99_ms"] = 1e3 * p50, 1e3 * p99
         return None
 
     def close(self) -> None:
