@@ -91,7 +91,16 @@ def problem() -> str | None:
     return None
 
 
-_MINE = re.compile(r"^hera-c(\d+)-([0-9a-f]{6})-\d+$")
+_MINE = re.compile(r"^hera-c(\d+)-([0-9a-f]{6})-(\d+)$")  # maker's pid, tag, node index
+
+
+def _bridge(tag: str) -> str:
+    return f"hb{tag}"
+
+
+def _outer(tag: str, index: int | str) -> str:
+    """The root namespace's end of node ``index``'s veth pair (the plan's ``veth`` + index)."""
+    return f"hv{tag}{index}"
 
 
 def sweep() -> list[str]:
@@ -108,11 +117,11 @@ def sweep() -> list[str]:
         m = _MINE.match(name)
         if m and not pid_alive(int(m.group(1))):
             with contextlib.suppress(RuntimeError):  # the pair first, as in close()
-                _run(["ip", "link", "del", f"hv{m.group(2)}{name.rsplit('-', 1)[1]}"])
+                _run(["ip", "link", "del", _outer(m.group(2), m.group(3))])
             with contextlib.suppress(RuntimeError):
                 _run(["ip", "netns", "del", name])
                 gone.append(name)
-            bridges.add(f"hb{m.group(2)}")
+            bridges.add(_bridge(m.group(2)))
     for br in sorted(bridges):
         with contextlib.suppress(RuntimeError):
             _run(["ip", "link", "del", br])
@@ -192,14 +201,18 @@ class Namespaces:
         }
         return {
             "backend": "netns",
-            "bridge": f"hb{tag}",
-            "veth": f"hv{tag}",
+            "bridge": _bridge(tag),
+            "veth": _outer(tag, ""),
             "root_addr": f"{net}.{ROOT_OCTET}",
             "nodes": nodes,
         }
 
     def addr(self, node: str) -> str:
         return self.nodes[node]["addr"]
+
+    def _link(self, n: dict[str, Any]) -> str:
+        """The root namespace's end of node ``n``'s veth pair."""
+        return f"{self.plan['veth']}{n['index']}"
 
     # -- making and removing -------------------------------------------------------------
     def create(self) -> None:
@@ -216,7 +229,7 @@ class Namespaces:
             _run(["ip", "addr", "add", f"{p['root_addr']}/24", "dev", p["bridge"]])
             _run(["ip", "link", "set", p["bridge"], "up"])
             for name, n in self.nodes.items():
-                ns, outer = n["netns"], f"{p['veth']}{n['index']}"
+                ns, outer = n["netns"], self._link(n)
                 _run(["ip", "netns", "add", ns])
                 self.created.append(ns)
                 _run(["ip", "-n", ns, "link", "set", "lo", "up"])
@@ -261,7 +274,7 @@ class Namespaces:
         for n in self.nodes.values():
             if n["netns"] in self.created:
                 with contextlib.suppress(RuntimeError):
-                    _run(["ip", "link", "del", f"{self.plan['veth']}{n['index']}"])
+                    _run(["ip", "link", "del", self._link(n)])
         for ns in self.created:
             with contextlib.suppress(RuntimeError):
                 _run(["ip", "netns", "del", ns])
