@@ -117,6 +117,15 @@ def readings_of(result: Sequence[float] | Reading | list[Reading] | None) -> lis
     return [Reading(result)]
 
 
+class MeasureSpecError(ValueError):
+    """A measure's settings break a rule: ``str()`` is "measure 'NAME': SENTENCE";
+    ``sentence`` alone, for a caller that names the measure its own way."""
+
+    def __init__(self, where: str, sentence: str) -> None:
+        super().__init__(f"{where}: {sentence}")
+        self.sentence = sentence
+
+
 @dataclass(frozen=True)
 class MeasureSpec:
     """One measure worker of a node: the spec's ``[[nodes.measures]]``/``[[measures]]`` entry.
@@ -185,14 +194,14 @@ class MeasureSpec:
             try:
                 s.kind.convert(value)
             except ValueError as e:
-                raise ValueError(f"{where}: {s.key} {e}, got {value!r}") from None
+                raise MeasureSpecError(where, f"{s.key} {e}, got {value!r}") from None
         if self.offset is not None:
             if self.sync:
-                raise ValueError(f"{where}: offset is for unsynchronised measures (sync = true)")
+                raise MeasureSpecError(where, "offset is for unsynchronised measures (sync = true)")
             if self.period is not None and self.offset >= self.period:
-                raise ValueError(
-                    f"{where}: offset must be below the period ({self.period:g} s), "
-                    f"got {self.offset!r}"
+                raise MeasureSpecError(
+                    where,
+                    f"offset must be below the period ({self.period:g} s), got {self.offset!r}",
                 )
 
     @property

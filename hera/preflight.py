@@ -9,6 +9,7 @@ one sentence each naming the file, the measure and the key (:class:`hera.spec.Sp
 
 from __future__ import annotations
 
+from hera.measure import MeasureSpecError
 from hera.plugins import AppIndex, PluginError, find_measure
 from hera.spec import ClusterSpec, SpecError
 
@@ -32,8 +33,8 @@ def spec_problems(spec: ClusterSpec) -> list[str]:
         problems.extend(cls.check_args(m.args, f"{where}: args"))
         try:  # the class's defaults may break a rule (an offset past its period)
             resolved = m.resolve(cls)
-        except ValueError as e:
-            problems.append(f"{where}: {str(e).removeprefix(f'measure {m.name!r}: ')}")
+        except MeasureSpecError as e:
+            problems.append(f"{where}: {e.sentence}")
             continue
         if resolved.sync and resolved.group not in groups:
             problems.append(
