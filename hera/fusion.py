@@ -24,9 +24,10 @@ A measure the supervisor restarts (it crashed, hung, or was stopped and started)
 model from a checkpoint, a copy taken every :data:`CHECKPOINT_S` of the model's state, if
 that is at most ``resume_s`` old (default 5 s) and the model's settings are unchanged;
 samples that came in between are lost to it, as samples lost on the bus are. A model that
-raised starts afresh (its checkpoint is dropped: its state may be what broke it), and so
-does a model in a node process that restarted (checkpoints are kept in the node's
-``ctx.resources``, in memory).
+raised starts afresh (its checkpoint is dropped: its state may be what broke it). The
+checkpoint is kept in the node's ``ctx.resources`` (in memory) and, where the node has a
+state directory, on disk (:mod:`hera.checkpoints`), so a model in a node process that was
+killed and restarted resumes too (its age then counted on the wall clock).
 
 Each source's samples are fused at most once (a sample with a seq not above the last fused
 one of its (name, node) is skipped). After a hot reload (:mod:`hera.reload`) the new fusion
@@ -49,6 +50,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
+from hera import checkpoints
 from hera.measure import Measure, MeasureContext, Reading
 from hera.recordings import start_marker
 from hera.schema import TABLE, Setting, Table, choice, did_you_mean, number
@@ -293,13 +295,14 @@ class FusionMeasure(Measure):
         self._settings = json.dumps(args["model"], sort_keys=True, default=str)
         self._checkpointed = time.monotonic()  # the first copy after CHECKPOINT_S
         self._checkpoints = args["resume_s"] > 0
+        self._disk = ctx.state_dir is not None  # checkpoints on disk too
         has_outputs = callable(getattr(self.model, "outputs", None))  # its rows go out as made
         self.every = self.mode == "arrival" and args["publish"] == "every" and not has_outputs
         self._fused: dict[tuple[str, str], int] = {}
         if self._checkpoints:
             self._resume(args["resume_s"])
         else:
-            ctx.resources.put(self._key, None)
+            self._forget()
         if self.mode == "arrival":
             self._inbox = Inbox(ctx.store, self.model.inputs, args["backlog"])
         else:
@@ -309,18 +312,34 @@ class FusionMeasure(Measure):
         """Take the model's state from this measure's checkpoint, if there is one at most
         ``resume_s`` old, of a model of the same class and settings."""
         saved = self.ctx.resources.get(self._key)
-        if saved is None:
-            return
-        at, settings, model, fused, first_t = saved
-        age = time.monotonic() - at
+        where = "its checkpoint"
+        if saved is not None:
+            at, settings, model, fused, first_t = saved
+            age = time.monotonic() - at
+            model = copy.deepcopy(model)  # the checkpoint stays as it was, for a next time
+        else:  # a new node process: the one its previous process left on disk, if any
+            entry = checkpoints.load(self.ctx.state_dir, self.ctx.spec.name) if self._disk else None
+            if entry is None:
+                return
+            age = time.time() - entry["t"]
+            settings, model, first_t = entry["settings"], entry["model"], entry["first_t"]
+            # this node's own streams may number afresh in its new process (hera.wire)
+            fused = {k: v for k, v in entry["fused"].items() if k[1] != self.ctx.node}
+            where = "the checkpoint its node's previous process left"
         if age > resume_s or settings != self._settings or type(model) is not type(self.model):
             return
-        self.model = copy.deepcopy(model)  # the checkpoint stays as it was, for a next time
+        self.model = model
         self._fused = dict(fused)
         self._first_t = first_t
         c = self.ctx.counters
         c["resumed"] = c.get("resumed", 0) + 1
-        self.ctx.log.info("resumed the model from its checkpoint of %.2f s ago", age)
+        self.ctx.log.info("resumed the model from %s of %.2f s ago", where, age)
+
+    def _forget(self) -> None:
+        """Drop this measure's checkpoints, in memory and on disk."""
+        self.ctx.resources.put(self._key, None)
+        if self._disk:
+            checkpoints.forget(self.ctx.state_dir, self.ctx.spec.name)
 
     def _checkpoint(self) -> None:
         """Copy the model's state for a restart (at most every CHECKPOINT_S)."""
@@ -336,6 +355,15 @@ class FusionMeasure(Measure):
             return
         saved = (now, self._settings, model, dict(self._fused), self._first_t)
         self.ctx.resources.put(self._key, saved)
+        if not self._disk:
+            return
+        entry = {"t": time.time(), "settings": self._settings, "model": model}
+        entry.update(fused=saved[3], first_t=self._first_t)
+        try:
+            checkpoints.save(self.ctx.state_dir, self.ctx.spec.name, entry)
+        except Exception as e:  # cannot be pickled, or the disk refused: in memory only
+            self._disk = False
+            self.ctx.log.warning("no checkpoints of the model on disk: %s", e)
 
     def _release(self, arrived: list[Sample]) -> list[Sample]:
         """Hold samples up to ``reorder_s``; return those due, in measurement-time order.
@@ -373,7 +401,7 @@ class FusionMeasure(Measure):
             try:
                 fused = self.model.process(s)
             except BaseException:  # its state may be what broke it: a restart starts afresh
-                self.ctx.resources.put(self._key, None)
+                self._forget()
                 raise
             if fused:
                 changed += 1

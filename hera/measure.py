@@ -272,6 +272,8 @@ class MeasureContext:
     - ``grant``: while a synchronised step runs, the grant it runs under, else None;
     - ``seed``: a deterministic seed for this (node, measure), from the spec;
     - ``run_dir``: the run directory (for recordings), or None;
+    - ``state_dir``: this node's own state directory (it outlives the node's process: args,
+      incarnation, checkpoints), or None;
     - ``resources``: objects the node's measures share (boards, a simulated medium), closed
       with the node; each node (or test) has its own.
     """
@@ -288,6 +290,7 @@ class MeasureContext:
     grant: Any = None
     seed: int = 0
     run_dir: str | None = None
+    state_dir: str | None = None
     resources: Resources = field(default_factory=lambda: Resources())
     log: logging.Logger = field(default_factory=lambda: logging.getLogger("hera.measure"))
 

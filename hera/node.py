@@ -285,6 +285,7 @@ class Node:
                 counters=counters,
                 seed=spec.seed,
                 run_dir=str(self.run_dir) if self.run_dir is not None else None,
+                state_dir=str(self.state_dir) if self.state_dir is not None else None,
                 resources=self.resources,
                 log=logging.getLogger(f"hera.measure.{spec.name}"),
             )

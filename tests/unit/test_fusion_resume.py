@@ -4,10 +4,13 @@ the checkpoint is too old, or ``resume_s = 0``; a resumed model never repeats it
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 from nodes_helpers import make_ctx
 
 import hera.fusion as fusion
+from hera import checkpoints
 from hera.fusion import FusionMeasure
 from hera.wire import Message
 
@@ -167,3 +170,99 @@ def test_another_node_never_resumes_this_ones_model():
     drain(m)
     other = start(make_ctx("sum", period=0.01))  # same names, another node's resources
     assert (other.model.total, other.model.n) == (0.0, 0)
+
+
+# -- across node processes: the checkpoint in the node's state directory -----------------
+
+
+def on_disk(tmp_path, resources=None):
+    """A measure context of node n1 with a state directory; fresh resources and store
+    stand for a new node process."""
+    return dataclasses.replace(
+        make_ctx("sum", period=0.01, resources=resources), state_dir=str(tmp_path)
+    )
+
+
+def feed_from(ctx, node: str, seq0: int, values: list[float]) -> None:
+    for i, v in enumerate(values):
+        ctx.store.offer("a", node, Message(seq0 + i, 10.0 + 0.1 * (seq0 + i), (v,)))
+
+
+def test_a_restarted_node_process_resumes_from_its_state_directory(tmp_path):
+    ctx = on_disk(tmp_path)
+    m = start(ctx)
+    feed_from(ctx, "n2", 1, [1.0, 2.0])
+    feed_from(ctx, "n1", 1, [3.0])  # this node's own stream
+    drain(m)
+    assert checkpoints.path_of(tmp_path, "sum").exists()
+    again = start(on_disk(tmp_path))  # a new process: nothing in memory, a new store
+    assert (again.model.total, again.model.n) == (6.0, 3)
+    assert again.ctx.counters["resumed"] == 1
+    feed_from(again.ctx, "n2", 2, [20.0])  # n2's seq 2 was fused before: skipped
+    feed_from(again.ctx, "n1", 1, [4.0])  # this node numbers afresh: fused
+    feed_from(again.ctx, "n2", 3, [5.0])
+    drain(again)
+    assert (again.model.total, again.model.n) == (15.0, 5)
+
+
+@pytest.mark.parametrize(
+    "args",
+    [{"model": {"scale": 2.0}}, {"resume_s": 1e-9}],
+    ids=["settings changed", "too old"],
+)
+def test_a_new_process_starts_afresh_when_the_file_does_not_fit(tmp_path, args):
+    ctx = on_disk(tmp_path)
+    drain_after(start(ctx), ctx, [1.0, 2.0])
+    again = start(on_disk(tmp_path), **args)
+    assert (again.model.total, again.model.n) == (0.0, 0)
+
+
+def drain_after(m, ctx, values):
+    feed_from(ctx, "n2", 1, values)
+    drain(m)
+
+
+def test_a_model_that_raised_or_resume_off_leaves_no_file(tmp_path):
+    ctx = on_disk(tmp_path)
+    m = start(ctx)
+    drain_after(m, ctx, [1.0])
+    feed_from(ctx, "n2", 2, [-1.0])
+    with pytest.raises(ArithmeticError):
+        drain(m)
+    assert not checkpoints.path_of(tmp_path, "sum").exists()
+    assert start(on_disk(tmp_path)).model.n == 0
+    ctx = on_disk(tmp_path)
+    drain_after(start(ctx), ctx, [1.0])
+    assert checkpoints.path_of(tmp_path, "sum").exists()
+    start(on_disk(tmp_path), resume_s=0)
+    assert not checkpoints.path_of(tmp_path, "sum").exists()
+
+
+def test_a_torn_file_is_no_checkpoint(tmp_path):
+    ctx = on_disk(tmp_path)
+    drain_after(start(ctx), ctx, [1.0])
+    path = checkpoints.path_of(tmp_path, "sum")
+    path.write_bytes(path.read_bytes()[:20])
+    again = start(on_disk(tmp_path))
+    assert (again.model.total, again.model.n) == (0.0, 0)
+
+
+class Unpicklable(Sum):
+    def __init__(self, scale: float = 1.0) -> None:
+        super().__init__(scale)
+        self.hook = lambda x: x  # copied by deepcopy, refused by pickle
+
+
+class UnpicklableMeasure(SumMeasure):
+    model_class = Unpicklable
+
+
+def test_a_model_pickle_refuses_keeps_its_checkpoints_in_memory(tmp_path, caplog):
+    resources = make_ctx("sum").resources
+    ctx = on_disk(tmp_path, resources)
+    m = start(ctx, UnpicklableMeasure)
+    drain_after(m, ctx, [1.0, 2.0])
+    assert not checkpoints.path_of(tmp_path, "sum").exists()
+    assert "no checkpoints of the model on disk" in caplog.text
+    again = start(on_disk(tmp_path, resources), UnpicklableMeasure)  # same process
+    assert (again.model.total, again.model.n) == (3.0, 2)
