@@ -35,6 +35,10 @@ def test_thesis_ch5_short(tmp_path):
     crashed = [i for i, x in enumerate(log) if "track_gyro crashed: InjectedFault" in x]
     resumed = [i for i, x in enumerate(log) if "track_gyro INFO resumed the model" in x]
     assert len(crashed) == 1 and resumed and resumed[0] > crashed[0], (crashed, resumed)
+    if h.faults[2].nodes == ["computer"]:  # the leader was computer (as a rule): its new
+        # process resumed e7 from the checkpoint the killed one left on disk
+        again = [x for x in log[crashed[0] :] if "checkpoint its node's previous process" in x]
+        assert any("track_gyro INFO resumed" in x for x in again), again
     figures = {r["figure"]: r for r in v["figures"].rows}
     measured = [r for r in figures.values() if r["verdict"] == "ok"]
     assert len(measured) >= 4  # killed measure, killed node noticed, paused one, leader kill
