@@ -4,8 +4,10 @@ restarts within the process).
 
 One file per measure, ``<node state dir>/checkpoints/<measure>.pickle``, replaced
 atomically (written beside, then renamed): a pickled dict with ``version`` (1), ``t`` (the
-wall clock when taken, s), ``settings`` (the model's settings as canonical JSON), ``model``
-(a copy of the model), ``fused`` (the last seq fused per (name, node)) and ``first_t``.
+wall clock when taken, s), ``run`` (the cluster run's directory: a state directory outlives
+runs, a checkpoint does not), ``settings`` (the model's settings as canonical JSON),
+``model`` (a copy of the model), ``fused`` (the last seq fused per (name, node)) and
+``first_t``.
 The file is this node's own, written by its own process: pickle is fine for it, and a file
 from anywhere else must never be put there.
 """

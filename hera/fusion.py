@@ -27,7 +27,8 @@ samples that came in between are lost to it, as samples lost on the bus are. A m
 raised starts afresh (its checkpoint is dropped: its state may be what broke it). The
 checkpoint is kept in the node's ``ctx.resources`` (in memory) and, where the node has a
 state directory, on disk (:mod:`hera.checkpoints`), so a model in a node process that was
-killed and restarted resumes too (its age then counted on the wall clock).
+killed and restarted resumes too (its age then counted on the wall clock), within the same
+run of the cluster (a state directory outlives runs: a new ``hera up`` starts afresh).
 
 Each source's samples are fused at most once (a sample with a seq not above the last fused
 one of its (name, node) is skipped). After a hot reload (:mod:`hera.reload`) the new fusion
@@ -319,7 +320,7 @@ class FusionMeasure(Measure):
             model = copy.deepcopy(model)  # the checkpoint stays as it was, for a next time
         else:  # a new node process: the one its previous process left on disk, if any
             entry = checkpoints.load(self.ctx.state_dir, self.ctx.spec.name) if self._disk else None
-            if entry is None:
+            if entry is None or entry.get("run") != self.ctx.run_dir:  # not of an earlier run
                 return
             age = time.time() - entry["t"]
             settings, model, first_t = entry["settings"], entry["model"], entry["first_t"]
@@ -357,8 +358,14 @@ class FusionMeasure(Measure):
         self.ctx.resources.put(self._key, saved)
         if not self._disk:
             return
-        entry = {"t": time.time(), "settings": self._settings, "model": model}
-        entry.update(fused=saved[3], first_t=self._first_t)
+        entry = {
+            "t": time.time(),
+            "run": self.ctx.run_dir,
+            "settings": self._settings,
+            "model": model,
+            "fused": saved[3],
+            "first_t": self._first_t,
+        }
         try:
             checkpoints.save(self.ctx.state_dir, self.ctx.spec.name, entry)
         except Exception as e:  # cannot be pickled, or the disk refused: in memory only

@@ -238,6 +238,17 @@ def test_a_model_that_raised_or_resume_off_leaves_no_file(tmp_path):
     assert not checkpoints.path_of(tmp_path, "sum").exists()
 
 
+def test_a_new_run_of_the_cluster_starts_afresh(tmp_path):
+    """The state directory outlives runs (args, calibrations); a model does not: a new
+    ``hera up`` (a new run directory) within resume_s of the last one starts cold."""
+    ctx = dataclasses.replace(on_disk(tmp_path), run_dir=str(tmp_path / "run1"))
+    drain_after(start(ctx), ctx, [1.0])
+    same = dataclasses.replace(on_disk(tmp_path), run_dir=str(tmp_path / "run1"))
+    assert start(same).model.n == 1
+    other = dataclasses.replace(on_disk(tmp_path), run_dir=str(tmp_path / "run2"))
+    assert start(other).model.n == 0
+
+
 def test_a_torn_file_is_no_checkpoint(tmp_path):
     ctx = on_disk(tmp_path)
     drain_after(start(ctx), ctx, [1.0])
