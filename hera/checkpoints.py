@@ -43,9 +43,7 @@ def load(state_dir: str | Path, measure: str) -> dict[str, Any] | None:
     model class that changed, a torn file): a measure then starts afresh."""
     try:
         entry = pickle.loads(path_of(state_dir, measure).read_bytes())
-    except FileNotFoundError:
-        return None
-    except Exception:  # noqa: BLE001 - anything unpickling raises: no checkpoint
+    except Exception:  # no file, or whatever unpickling raised: no checkpoint
         return None
     if not isinstance(entry, dict) or entry.get("version") != VERSION:
         return None
