@@ -222,6 +222,12 @@ def _parser() -> argparse.ArgumentParser:
         "estimates at the live estimates' instants (to compare a replay with a live node)",
     )
     rp.add_argument(
+        "--backend",
+        choices=("auto", "numba", "numpy"),
+        help="estimation backend of the models (default: the spec's estimation_backend, "
+        "as the live nodes ran them)",
+    )
+    rp.add_argument(
         "--smooth",
         action="store_true",
         help="also write RTS-smoothed estimates of each KF/EKF model to OUT/smoothed "
@@ -665,6 +671,9 @@ def _replay(args: argparse.Namespace) -> int:
     spec_path = Path(args.recordings) / "cluster.json"
     recorded = _load(str(spec_path)) if spec_path.exists() else None
     spec = _load(args.spec) if args.spec else recorded
+    # before any model is made (choosing them makes some): the first filter fixes the backend
+    chosen_backend = args.backend or (spec.estimation_backend if spec is not None else None)
+    _replay_backend(chosen_backend)
     models = model_args_from_spec(spec) if spec is not None else {}
     wanted = args.models.split(",") if args.models else None
     chosen = with_producers(pick_models(models, wanted), models)
@@ -690,6 +699,9 @@ def _replay(args: argparse.Namespace) -> int:
     from hera.progress import Progress
 
     with Progress("replay") as progress:
+        if chosen_backend is not None:
+            origin = "--backend" if args.backend else "the spec's estimation_backend"
+            progress.say(f"estimation backend: {chosen_backend} ({origin})")
         counts = replay(
             args.recordings,
             args.out,
@@ -705,6 +717,22 @@ def _replay(args: argparse.Namespace) -> int:
     for name, n in counts.items():
         print(f"{name:<20} {n:>7} estimates -> {Path(args.out) / 'measures'}")
     return 0
+
+
+def _replay_backend(name: str | None) -> None:
+    """Run the replayed models on ``name`` (``--backend``, else the spec's
+    ``estimation_backend``: the live nodes' arithmetic, and no compile on the numpy default);
+    None (no spec) keeps the library's default."""
+    if name is None:
+        return
+    if name == "numba":
+        import importlib.util
+
+        if importlib.util.find_spec("numba") is None:
+            raise ValueError("estimation backend 'numba' asked for, but numba is not installed")
+    from hera.estimation import backend
+
+    backend.prefer(name)
 
 
 def _eval(args: argparse.Namespace) -> int:

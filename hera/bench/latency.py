@@ -31,6 +31,17 @@ class LatencyHistogram:
         self.counts[min(i, BINS - 1)] += 1
         self.n += 1
 
+    def sparse(self) -> dict[int, int]:
+        """The non-empty bins as {bin index: count}: what a reader reports so that the
+        readers' samples can be pooled (``merge``)."""
+        return {i: c for i, c in enumerate(self.counts) if c}
+
+    def merge(self, bins: dict[int, int]) -> None:
+        """Add the counts of another histogram's ``sparse()`` bins to this one's."""
+        for i, c in bins.items():
+            self.counts[i] += c
+            self.n += c
+
     def percentile(self, q: float) -> float | None:
         """The latency (s) below which the ``q`` share (0..1) of the samples lie, as the
         upper edge of its bin: the sample of rank ``int(q * n)`` (0-based, at most n - 1),

@@ -34,6 +34,10 @@ POSITION_NODES = ("computer", "sonar_x")
 E13_NODES = ("computer", "nav_1")
 
 
+# a long real-cluster run: CI runs the train's, the AHRS's, ToF's and IR tracking's; here -m slow
+pytestmark = pytest.mark.slow
+
+
 @pytest.fixture(scope="module")
 def killed_run(tmp_path_factory):
     """(run directory, epoch time of the hang, epoch time of the kill)."""

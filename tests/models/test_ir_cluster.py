@@ -140,6 +140,7 @@ def plate_run(tmp_path_factory):
     return tmp, c.run_dir
 
 
+@pytest.mark.slow  # a second live run of this module (CI runs the tracking one)
 def test_the_warm_plate_is_mapped_and_its_hot_block_found(plate_run):
     _, run = plate_run
     res = by_model(evaluate(run))
@@ -150,6 +151,7 @@ def test_the_warm_plate_is_mapped_and_its_hot_block_found(plate_run):
     assert fused["map_pct"] >= ir["map_pct"] and ir["hot_err_cm"] is None
 
 
+@pytest.mark.slow  # a second live run of this module (CI runs the tracking one)
 def test_a_replay_of_the_plate_gives_the_same_maps(plate_run):
     tmp, run = plate_run
     out = tmp / "again"

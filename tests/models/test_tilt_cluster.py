@@ -25,6 +25,9 @@ from hera.models.tilt.app import THETA, robot_truth, score_tilt
 from hera.recordings import read_csv
 
 ROOT = Path(__file__).resolve().parents[2]
+# a long real-cluster run: CI runs the train's, the AHRS's, ToF's and IR tracking's; here -m slow
+pytestmark = pytest.mark.slow
+
 ASK_AT, KILL_AT, END_AT = 15.0, 42.0, 56.0  # s after the epoch: pushes at 13, 23, 33 s
 
 

@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from harness import cluster_env
 
@@ -166,3 +167,35 @@ def test_eval_without_truth_scores_against_a_reference_series_and_says_so(sim, t
     assert rows[0].source.startswith("self-consistency") and "lap timing" in rows[0].source
     bad = hera("eval", str(out), "--reference", str(tmp_path / "nope.csv"), tmp=tmp_path)
     assert bad.returncode == 2 and "nope.csv" in bad.stderr
+
+
+def test_replay_runs_on_the_specs_backend_unless_told_and_both_agree(sim, tmp_path):
+    """The live nodes fuse on the spec's ``estimation_backend`` (numpy by default), and so
+    does the replay: the same arithmetic, and no numba compile for a numpy run.
+    ``--backend`` picks another. The two backends agree to rounding on the same inputs; the
+    train's branch grid then picks between near-equal branches (a discrete choice), which
+    can turn a rounding difference into one of about 2e-5 that the filter forgets again."""
+    out = {}
+    for backend in (None, "numba"):
+        dest = tmp_path / str(backend)
+        extra = ["--backend", backend] if backend else []
+        proc = hera("replay", str(sim), "--out", str(dest), "--models", "e7", *extra, tmp=tmp_path)
+        assert proc.returncode == 0, proc.stderr
+        said = "numba (--backend)" if backend else "numpy (the spec's estimation_backend)"
+        assert f"estimation backend: {said}" in proc.stderr, proc.stderr
+        (csv,) = (dest / "measures").glob("track_gyro_replay.csv")
+        out[backend] = np.loadtxt(csv, delimiter=",", skiprows=1)
+    # the default replay of this numpy spec never even imports numba (no compile)
+    probe = (
+        "import sys; from hera.cli import main; "
+        f"rc = main(['replay', {str(sim)!r}, '--out', {str(tmp_path / 'probe')!r}, "
+        "'--models', 'e7']); print(rc, 'numba' in sys.modules)"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", probe], env=cluster_env(tmp_path), capture_output=True, text=True
+    )
+    assert proc.stdout.split()[-2:] == ["0", "False"], proc.stdout[-500:] + proc.stderr[-2000:]
+    a, b = out[None], out["numba"]
+    assert a.shape == b.shape and len(a) > 1000
+    np.testing.assert_allclose(a[:30], b[:30], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-4)

@@ -31,3 +31,21 @@ def test_empty_tiny_negative_and_huge_latencies():
     h.add(1e6)  # beyond the last bin: counted there, not lost
     assert h.n == 4 and h.counts[BINS - 1] == 1
     assert h.percentile(1.0) == pytest.approx(LOW_S * RATIO ** (BINS - 1))
+
+
+def test_merged_sparse_bins_give_the_percentiles_of_the_pooled_samples():
+    rng = np.random.default_rng(5)
+    parts = [rng.lognormal(np.log(1e-3 * (k + 1)), 0.5, 3000) for k in range(4)]
+    pooled = LatencyHistogram()
+    for part in parts:
+        h = LatencyHistogram()
+        for x in part.tolist():
+            h.add(x)
+        pooled.merge(h.sparse())
+    ordered = np.sort(np.concatenate(parts))
+    assert pooled.n == len(ordered)
+    for q in (0.5, 0.99):
+        exact = ordered[int(q * len(ordered))]
+        assert exact <= pooled.percentile(q) <= exact * RATIO * (1 + 1e-12)
+    # the worst part's p99 is not the pooled one: pooling is what this is for
+    assert pooled.percentile(0.99) < np.quantile(parts[3], 0.99)
