@@ -1,0 +1,110 @@
+"""The first compile shared between processes (``hera.estimation.backend``): how the kernels
+are split, how many processes, and what happens when a helper fails. The real parallel
+compile runs in tests/estimation/test_backend_loading.py and tests/packaging/test_install.py
+(a fresh cache each), which check its lines on stderr."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from hera.estimation import backend
+
+NAMES = tuple(backend.COMPILE_SECONDS)
+
+
+def _load(share: list[str]) -> float:
+    return sum(backend.COMPILE_SECONDS[n] for n in share)
+
+
+@pytest.mark.parametrize("jobs", [1, 2, 3, 4])
+def test_every_kernel_in_exactly_one_share_and_the_shares_balanced(jobs):
+    parts = backend.shares(NAMES, jobs)
+    assert sorted(n for p in parts for n in p) == sorted(NAMES)
+    assert len(parts) == jobs
+    loads = [_load(p) for p in parts]
+    assert loads == sorted(loads, reverse=True)  # this process keeps the largest share
+    # longest-first greedy is within 4/3 of the best split (Graham 1969), and the best is
+    # at least the even share and at least the longest kernel
+    best = max(sum(loads) / jobs, max(backend.COMPILE_SECONDS.values()))
+    assert max(loads) <= 4 / 3 * best
+    if jobs == 2:  # 68 s of compile in two processes: about 34 s each
+        assert max(loads) <= 0.55 * sum(loads)
+
+
+def test_more_processes_than_kernels_gives_no_empty_share():
+    assert backend.shares(["kf_step", "ekf_step"], 4) == [["kf_step"], ["ekf_step"]]
+    assert backend.shares(["a_new_kernel"], 2) == [["a_new_kernel"]]
+
+
+@pytest.mark.parametrize(
+    "raw,count,expected", [("1", 12, 1), ("3", 12, 3), ("8", 2, 2), (" 2 ", 12, 2)]
+)
+def test_the_variable_sets_the_process_count(monkeypatch, raw, count, expected):
+    monkeypatch.setenv(backend.JOBS_ENV, raw)
+    assert backend.compile_jobs(count) == expected
+
+
+def test_the_default_is_the_cpu_count_at_most_four(monkeypatch):
+    monkeypatch.delenv(backend.JOBS_ENV, raising=False)
+    for cpus, expected in ((1, 1), (2, 2), (16, 4), (None, 1)):
+        monkeypatch.setattr(backend.os, "cpu_count", lambda c=cpus: c)
+        assert backend.compile_jobs(12) == expected
+
+
+@pytest.mark.parametrize("raw", ["0", "-1", "two", "1.5"])
+def test_a_bad_process_count_is_one_sentence_naming_the_variable(monkeypatch, raw):
+    monkeypatch.setenv(backend.JOBS_ENV, raw)
+    with pytest.raises(ValueError) as e:
+        backend.compile_jobs(12)
+    assert str(e.value) == (f"HERA_COMPILE_JOBS={raw!r}: expected a whole number of processes >= 1")
+
+
+def _exits(code: int):
+    def spawn(share: list[str]) -> subprocess.Popen:
+        return subprocess.Popen([sys.executable, "-c", f"raise SystemExit({code})"])
+
+    return spawn
+
+
+def test_helpers_take_the_other_shares_and_their_failures_are_returned():
+    here: list[str] = []
+    spawned: list[list[str]] = []
+
+    def spawn(share):
+        spawned.append(share)
+        return _exits(0 if len(spawned) == 1 else 3)(share)
+
+    failed = backend.compile_shared(NAMES, 3, here.append, spawn)
+    parts = backend.shares(NAMES, 3)
+    assert here == parts[0] and spawned == parts[1:]
+    assert failed == [(parts[2], 3)]  # the caller compiles that share itself
+
+
+def test_a_helper_that_cannot_start_is_a_failure_and_the_rest_goes_on():
+    here: list[str] = []
+
+    def spawn(share):
+        raise OSError("no more processes")
+
+    failed = backend.compile_shared(NAMES, 2, here.append, spawn)
+    parts = backend.shares(NAMES, 2)
+    assert here == parts[0] and failed == [(parts[1], -1)]
+
+
+def test_one_process_spawns_nothing():
+    here: list[str] = []
+    assert backend.compile_shared(NAMES, 1, here.append, _exits(9)) == []
+    assert sorted(here) == sorted(NAMES)
+
+
+def test_a_helper_that_hangs_is_killed_after_the_timeout(monkeypatch):
+    monkeypatch.setattr(backend, "HELPER_TIMEOUT_S", 0.5)
+
+    def spawn(share):
+        return subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+
+    failed = backend.compile_shared(NAMES, 2, lambda name: None, spawn)
+    assert len(failed) == 1 and failed[0][1] != 0
