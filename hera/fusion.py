@@ -41,6 +41,7 @@ its name, the old model's attributes are carried over as they are.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import heapq
 import inspect
 import json
@@ -53,7 +54,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 from hera import checkpoints
 from hera.measure import Measure, MeasureContext, Reading
-from hera.recordings import start_marker
+from hera.recordings import recorded_time, start_marker
 from hera.schema import TABLE, Setting, Table, choice, did_you_mean, number
 from hera.store import Sample, Store
 
@@ -163,6 +164,15 @@ CHECKPOINT_KEY = "fusion/checkpoint/"
 """``ctx.resources`` key prefix (+ the measure's name) of a fusion measure's checkpoint:
 (monotonic time, the model's settings as JSON, a copy of the model, the seqs fused, the
 first fused sample's time)."""
+
+
+def as_recorded(s: Sample) -> Sample:
+    """The sample with its time as a recording keeps it (:func:`hera.recordings.
+    recorded_time`, to the microsecond): what a model is given live, as in a replay. Without
+    it, a model with a discrete choice (the train's branch grid between two near-equal
+    branches) could take another branch live than in the replay of the same run."""
+    t = recorded_time(s.t)
+    return s if t == s.t else dataclasses.replace(s, t=t)
 
 
 def time_order(samples: Sequence[Sample]) -> list[Sample]:
@@ -396,9 +406,10 @@ class FusionMeasure(Measure):
         (arrival mode) one per sample that changed it, as ``hera replay`` gives them; a
         model's ``outputs()`` rows, all, when it has them."""
         if self._inbox is not None:
-            samples = self._release(self._inbox.drain(timeout=0.8 * self.ctx.spec.period))
+            arrived = self._inbox.drain(timeout=0.8 * self.ctx.spec.period)
+            samples = self._release([as_recorded(s) for s in arrived])
         else:
-            samples = time_order(self._cursor.new(max_age=self.max_age))
+            samples = time_order([as_recorded(s) for s in self._cursor.new(max_age=self.max_age)])
         out: list[Reading] = []
         changed = 0
         for s in samples:
@@ -410,11 +421,11 @@ class FusionMeasure(Measure):
             except BaseException:  # its state may be what broke it: a restart starts afresh
                 self._forget()
                 raise
+            if self._first_t is None:  # the first sample it was given, fused or kept
+                self._first_t = s.t
+                self._record_start(s.t)
             if fused:
                 changed += 1
-                if self._first_t is None:
-                    self._first_t = s.t
-                    self._record_start(s.t)
                 if self.every:  # each estimate, as hera replay gives them
                     est = self.model.estimate()
                     if est is not None:
@@ -448,7 +459,7 @@ class FusionMeasure(Measure):
         pending = [entry[-1] for entry in state.get("_held", ())]
         old_inbox = state.get("_inbox")
         if old_inbox is not None:
-            pending += old_inbox.drain()
+            pending += [as_recorded(s) for s in old_inbox.drain()]
         if self._inbox is not None:
             for s in pending:
                 heapq.heappush(self._held, (s.t, s.name, s.node, s.seq, s))

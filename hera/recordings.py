@@ -59,6 +59,14 @@ def _width(path: Path) -> int | None:
         return None
 
 
+def recorded_time(t: float) -> float:
+    """``t`` (epoch seconds) as a recording keeps it, so as ``hera replay`` gives it to a
+    model: :class:`CsvWriter` writes milliseconds rounded to the microsecond and
+    :func:`read_csv` divides them by 1000. Fusion measures give their models these times
+    live too, so that live and replay fuse the very same numbers."""
+    return round(t * 1000.0, 3) / 1000.0
+
+
 def read_csv(path: Path, name: str, node: str) -> list[Sample]:
     """Every row of one CSV as samples (t in seconds); RecordingError naming the file and
     the row on a row that is not ``seq,timestamp_ms,values...``, has another number of

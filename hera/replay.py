@@ -20,7 +20,7 @@ from typing import Any
 
 from hera.fusion import FusionMeasure, model_counters, model_outputs, spec_models, time_order
 from hera.plugins import find_measure
-from hera.recordings import SOURCE_FILE, CsvWriter, read_recordings
+from hera.recordings import SOURCE_FILE, CsvWriter, read_recordings, recorded_time
 from hera.schema import did_you_mean
 from hera.smoothing import NotSmoothable, SmoothedRun, smoothed_dir
 from hera.spec import ClusterSpec, load_spec
@@ -55,7 +55,7 @@ CSV_RESOLUTION_S = 1e-6
 
 
 def live_schedule(recordings: str | Path, node: str) -> dict[str, tuple[float, set[int]]]:
-    """For each model that ``node`` ran live: the time of its first fused sample (from the
+    """For each model that ``node`` ran live: the time of the first sample it was given (from the
     ``.start.json`` the fusion measure wrote, else its first estimate) and the instants
     (epoch microseconds) of its live estimates."""
     from hera.recordings import measures_dir, read_csv, start_marker
@@ -167,7 +167,15 @@ def replay(
                     if instants is None or round(t * 1e6) in instants:
                         writer.write(t, values)
                         outputs.append(
-                            Sample(name, node, writer.seq, t, 0.0, 0.0, tuple(map(float, values)))
+                            Sample(
+                                name,
+                                node,
+                                writer.seq,
+                                recorded_time(t),
+                                0.0,
+                                0.0,
+                                tuple(map(float, values)),
+                            )
                         )
                         if smoother is not None:
                             smoother.mark(t)

@@ -15,7 +15,7 @@ load the kernels from the cache in well under a second. Processes that start at 
 time compile once between them (a lock file in the cache directory). The compile is shared
 between up to ``HERA_COMPILE_JOBS`` processes (default: the CPU count, at most 4): helper
 processes compile their share into the cache and this one loads it from there (68 s in one
-process, 35 s in two, measured on a 2-core machine); a helper that fails leaves its share
+process, 36 s in two, measured on a 2-core machine); a helper that fails leaves its share
 to this process. ``warmup()`` loads every kernel up front and returns the time it took.
 """
 
@@ -212,7 +212,7 @@ class _Kernels:
                 file=sys.stderr,
                 flush=True,
             )
-        for name in names:  # the helpers' shares from the cache; a failed helper's compiled
+        for name in names:  # the helpers' shares load from the cache, a failed one's compile
             getattr(self, name)
         spent = time.perf_counter() - t0
         try:
@@ -296,17 +296,17 @@ def compile_shared(
 
 def _spawn_helper(share: list[str], cache: Path) -> subprocess.Popen:
     """A process that compiles ``share`` into ``cache`` (:func:`_compile_names`), importing
-    this very copy of hera (its kernels' source file is numba's cache key)."""
-    env = dict(os.environ)
+    this very copy of hera (its kernels' source file is numba's cache key): the folder that
+    holds this ``hera`` goes first on the helper's path unless it is there already (an
+    installed package's site-packages is, and keeps its place after the standard library)."""
     root = str(Path(__file__).resolve().parents[2])
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [root, env.get("PYTHONPATH")]))
     code = (
-        "import sys; from hera.estimation.backend import _compile_names; "
-        "_compile_names(sys.argv[1], sys.argv[2:])"
+        "import sys; r = sys.argv[1]; r in sys.path or sys.path.insert(0, r); "
+        "from hera.estimation.backend import _compile_names; "
+        "_compile_names(sys.argv[2], sys.argv[3:])"
     )
     return subprocess.Popen(
-        [sys.executable, "-c", code, str(cache), *share],
-        env=env,
+        [sys.executable, "-c", code, root, str(cache), *share],
         stdin=subprocess.DEVNULL,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,

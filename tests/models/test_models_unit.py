@@ -18,7 +18,7 @@ from hera.measure import MeasureContext, MeasureSpec
 from hera.models.train.bilateration import Bilateration, intersect
 from hera.models.train.measures import TrackGyro
 from hera.models.train.tracker import LADDER, TrainTracker
-from hera.recordings import RecordingError, read_recordings, split_stem
+from hera.recordings import RecordingError, read_recordings, recorded_time, split_stem
 from hera.store import Sample, Store
 from hera.wire import Message
 
@@ -166,13 +166,15 @@ def test_fusion_measure_in_arrival_mode_fuses_a_late_sample_in_time_order():
     seen = []
     real = m.model.process
     m.model.process = lambda s: seen.append(s.t) or real(s)
-    t0 = time.time()
+    t0 = int(time.time()) + 0.1234567  # a time a recording rounds (to the microsecond)
+    assert recorded_time(t0) != t0
     store.offer("nav", "n", Message(1, t0 + 0.02, (0.42, 0.84)))
     store.offer("sonar", "s", Message(1, t0, (1.2, 0.3, -1.5)))  # stamped earlier, late
     deadline = time.monotonic() + 5
     while len(seen) < 2 and time.monotonic() < deadline:
         m.measure()
-    assert seen == [t0, t0 + 0.02]
+    # in time order, at the times a recording keeps (to the microsecond), as a replay gives
+    assert seen == [recorded_time(t0), recorded_time(t0 + 0.02)]
     assert m.ctx.counters["fused"] == 2
     m.close()
 
