@@ -16,6 +16,7 @@ from collections import OrderedDict
 from pathlib import Path
 from typing import IO
 
+from hera.recordings import timestamp_ms
 from hera.store import Sample
 
 
@@ -46,7 +47,7 @@ class CsvLog:
                 f = self._open(s)
             else:
                 self._files.move_to_end((s.name, s.node))
-            f.write(f"{s.seq},{round(s.t * 1000.0, 3)!r},{','.join(map(repr, s.values))}\n")
+            f.write(f"{s.seq},{timestamp_ms(s.t)!r},{','.join(map(repr, s.values))}\n")
             f.flush()
             self.rows += 1
 

@@ -59,12 +59,18 @@ def _width(path: Path) -> int | None:
         return None
 
 
+def timestamp_ms(t: float) -> float:
+    """The ``timestamp_ms`` column of a recording for ``t`` (epoch seconds): milliseconds
+    rounded to the microsecond (written with ``repr``, so read back exactly)."""
+    return round(t * 1000.0, 3)
+
+
 def recorded_time(t: float) -> float:
     """``t`` (epoch seconds) as a recording keeps it, so as ``hera replay`` gives it to a
-    model: :class:`CsvWriter` writes milliseconds rounded to the microsecond and
-    :func:`read_csv` divides them by 1000. Fusion measures give their models these times
-    live too, so that live and replay fuse the very same numbers."""
-    return round(t * 1000.0, 3) / 1000.0
+    model: :func:`timestamp_ms` as :func:`read_csv` reads it back (divided by 1000). Fusion
+    measures give their models these times live too, so that live and replay fuse the very
+    same numbers."""
+    return timestamp_ms(t) / 1000.0
 
 
 def read_csv(path: Path, name: str, node: str) -> list[Sample]:
@@ -138,7 +144,7 @@ class CsvWriter:
 
     def write(self, t: float, values: Iterable[float]) -> None:
         self.seq += 1
-        self._f.write(f"{self.seq},{round(t * 1000.0, 3)!r},{','.join(map(repr, values))}\n")
+        self._f.write(f"{self.seq},{timestamp_ms(t)!r},{','.join(map(repr, values))}\n")
 
     def close(self) -> None:
         self._f.close()
