@@ -31,7 +31,9 @@ killed and restarted resumes too (its age then counted on the wall clock), withi
 run of the cluster (a state directory outlives runs: a new ``hera up`` starts afresh).
 
 Each source's samples are fused at most once (a sample with a seq not above the last fused
-one of its (name, node) is skipped). After a hot reload (:mod:`hera.reload`) the new fusion
+one of its (name, node) is skipped), and so is each estimate of a model that runs on several
+nodes: the copy another replica publishes is skipped (:class:`Copies`, counted ``copies``),
+as ``hera replay`` runs one instance of it. After a hot reload (:mod:`hera.reload`) the new fusion
 measure takes over the old one's model state and the samples it held
 (:meth:`FusionMeasure.code_change`): a model with its own ``code_change(old_version,
 old_model)`` converts the old model's state itself; otherwise, when the model class keeps
@@ -180,6 +182,41 @@ def time_order(samples: Sequence[Sample]) -> list[Sample]:
     return sorted(samples, key=lambda s: (s.t, s.name, s.node, s.seq))
 
 
+class Copies:
+    """Recognises the copies of one estimate that replicas of a model publish.
+
+    A model run on several nodes for redundancy (the train's ``bilateration`` on
+    ``computer`` and ``nav_1``) publishes each estimate from each of them: the same values
+    at the same measurement time. A model fed by it must fuse that estimate once, as
+    ``hera replay`` (one instance of the upstream model) does; fusing every copy counts one
+    measurement as many times as there are replicas. A sample is a copy when one with the
+    same name, measurement time and values has been seen before, from any node (two
+    sensors never give bit-identical values at the same microsecond). The last ``memory``
+    samples of each name are remembered.
+    """
+
+    def __init__(self, memory: int = 256) -> None:
+        if memory < 1:
+            raise ValueError(f"memory must be >= 1, got {memory!r}")
+        self._memory = memory
+        self._seen: dict[str, tuple[set, deque]] = {}
+
+    def is_copy(self, s: Sample) -> bool:
+        """Whether ``s`` repeats a sample seen before; if not, remember it."""
+        key = (s.t, s.values)
+        entry = self._seen.get(s.name)
+        if entry is None:
+            entry = self._seen[s.name] = (set(), deque())
+        keys, order = entry
+        if key in keys:
+            return True
+        keys.add(key)
+        order.append(key)
+        if len(order) > self._memory:
+            keys.discard(order.popleft())
+        return False
+
+
 class Inbox:
     """Collects every sample of some names accepted by a store (see module docstring)."""
 
@@ -310,6 +347,7 @@ class FusionMeasure(Measure):
         has_outputs = callable(getattr(self.model, "outputs", None))  # its rows go out as made
         self.every = self.mode == "arrival" and args["publish"] == "every" and not has_outputs
         self._fused: dict[tuple[str, str], int] = {}
+        self._copies = Copies()
         if self._checkpoints:
             self._resume(args["resume_s"])
         else:
@@ -416,6 +454,9 @@ class FusionMeasure(Measure):
             if s.seq <= self._fused.get((s.name, s.node), 0):
                 continue  # already fused (a sample handed over by a hot reload)
             self._fused[(s.name, s.node)] = s.seq
+            if self._copies.is_copy(s):  # another replica's copy of an estimate fused
+                self.ctx.count("copies")
+                continue
             try:
                 fused = self.model.process(s)
             except BaseException:  # its state may be what broke it: a restart starts afresh
@@ -456,6 +497,7 @@ class FusionMeasure(Measure):
             )
         self._first_t = state.get("_first_t", self._first_t)
         self._fused = {**state.get("_fused", {}), **self._fused}
+        self._copies = state.get("_copies", self._copies)
         pending = [entry[-1] for entry in state.get("_held", ())]
         old_inbox = state.get("_inbox")
         if old_inbox is not None:

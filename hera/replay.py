@@ -18,7 +18,14 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from hera.fusion import FusionMeasure, model_counters, model_outputs, spec_models, time_order
+from hera.fusion import (
+    Copies,
+    FusionMeasure,
+    model_counters,
+    model_outputs,
+    spec_models,
+    time_order,
+)
 from hera.plugins import find_measure
 from hera.recordings import SOURCE_FILE, CsvWriter, read_recordings, recorded_time
 from hera.schema import did_you_mean
@@ -111,7 +118,8 @@ def replay(
 
     Chained models run in dependency order in this one call: a model whose inputs include
     another replayed model's output takes that model's replayed estimates (published by
-    ``node``), not the recorded ones of the same name.
+    ``node``), not the recorded ones of the same name. The recorded estimates of a model
+    that ran on several nodes are fused once (:class:`hera.fusion.Copies`), as live.
 
     ``like`` (model name -> (start, instants), see :func:`live_schedule`) makes a replay of
     a live node: each model starts at the live model's first sample and writes estimates
@@ -153,11 +161,12 @@ def replay(
             feed = time_order([*samples, *(s for u in upstream for s in u)])
         outputs: list[Sample] = []
         smoother = _smoother(model, name, say) if smooth else None
+        copies = Copies()  # recorded estimates of an upstream model's replicas: fused once
         try:
             for i, s in enumerate(feed):
                 if progress is not None and i % 5000 == 0:
                     progress(fed + i, total)
-                if s.t < t_start or s.name not in model.inputs:
+                if s.t < t_start or s.name not in model.inputs or copies.is_copy(s):
                     continue
                 changed = model.process(s)
                 rows = model_outputs(model)

@@ -619,7 +619,9 @@ class TrainTracker:
         elif sample.name == "mag" and len(v) >= 1:
             self._mag(v[0])
         elif sample.name == "bilateration" and len(v) >= 2:
-            self._bilateration(v[0], v[1], v[2] / 2.0 if len(v) >= 3 else 0.0)
+            # a fix that came late is of span / 2 before its own time, fused at the filter's
+            late = self.t - sample.t
+            self._bilateration(v[0], v[1], (v[2] / 2.0 if len(v) >= 3 else 0.0) + late)
         else:
             return False
         self._keep_direction()

@@ -125,6 +125,24 @@ def test_samples_older_than_the_filter_by_max_lag_are_dropped_and_counted():
     assert (m.out_of_order, m.late) == (1, 1)
 
 
+def test_a_late_bilateration_fix_is_taken_as_of_its_own_time():
+    """A fix fused after the filter has moved on (it came late: the second reading's ping,
+    then bilateration's own reordering) still describes the train at span / 2 before its
+    own time, not before the filter's: theta is not pulled back by the lateness."""
+    m = TrainTracker(rung="e5", branches=0, var_bilat=1e-3, radius=0.6)
+    assert m.process(sample("nav", "n", 1, 10.0, 0.42, 0.84))
+    th0, w = 1.0, 0.84
+    m.ekf.x = np.array([0.6 * math.cos(th0), 0.6 * math.sin(th0), th0, w])
+    m.ekf.P = np.diag([1e-2, 1e-2, 0.05, 1e-6])
+    t_fix, span = 9.85, 0.1  # 0.15 s late; the train was there at 9.8 s
+    th = th0 - w * (10.0 - (t_fix - span / 2))
+    assert m.process(
+        sample("bilateration", "n", 1, t_fix, 0.6 * math.cos(th), 0.6 * math.sin(th), span)
+    )
+    assert m.out_of_order == 1 and m.t == 10.0
+    assert abs(m.ekf.x[2] - th0) < 0.005, m.ekf.x[2]  # as of 10 - span / 2: 0.12 rad back
+
+
 def test_unknown_rung_and_bad_variances_are_refused():
     with pytest.raises(ValueError, match="unknown rung 'e42'"):
         TrainTracker(rung="e42")
