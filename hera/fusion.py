@@ -56,7 +56,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 from hera import checkpoints
 from hera.measure import Measure, MeasureContext, Reading
-from hera.recordings import recorded_time, start_marker
+from hera.recordings import LiveStart, read_start, recorded_time, start_marker, write_start
 from hera.schema import TABLE, Setting, Table, choice, did_you_mean, number
 from hera.store import Sample, Store
 
@@ -348,6 +348,11 @@ class FusionMeasure(Measure):
         self.every = self.mode == "arrival" and args["publish"] == "every" and not has_outputs
         self._fused: dict[tuple[str, str], int] = {}
         self._copies = Copies()
+        # what keeps a replay from repeating this model (the start marker, LiveStart)
+        self._last_t = float("-inf")  # the newest sample time given to the model
+        self._late, self._first_late_t, self._resumed, self._dropped0 = 0, None, 0, 0
+        self._marker: LiveStart | None = None  # as last written
+        self._marker_at = float("-inf")
         if self._checkpoints:
             self._resume(args["resume_s"])
         else:
@@ -380,6 +385,7 @@ class FusionMeasure(Measure):
         self.model = model
         self._fused = dict(fused)
         self._first_t = first_t
+        self._carry_marker()
         c = self.ctx.counters
         c["resumed"] = c.get("resumed", 0) + 1
         self.ctx.log.info("resumed the model from %s of %.2f s ago", where, age)
@@ -457,6 +463,12 @@ class FusionMeasure(Measure):
             if self._copies.is_copy(s):  # another replica's copy of an estimate fused
                 self.ctx.count("copies")
                 continue
+            if s.t < self._last_t:  # came after its reorder_s: given out of time order
+                self._late += 1
+                if self._first_late_t is None:
+                    self._first_late_t = s.t
+            else:
+                self._last_t = s.t
             try:
                 fused = self.model.process(s)
             except BaseException:  # its state may be what broke it: a restart starts afresh
@@ -464,7 +476,7 @@ class FusionMeasure(Measure):
                 raise
             if self._first_t is None:  # the first sample it was given, fused or kept
                 self._first_t = s.t
-                self._record_start(s.t)
+                self._record_start()
             if fused:
                 changed += 1
                 if self.every:  # each estimate, as hera replay gives them
@@ -472,6 +484,7 @@ class FusionMeasure(Measure):
                     if est is not None:
                         out.append(Reading(est[1], est[0]))
         self._report(len(samples))
+        self._write_marker()
         rows = model_outputs(self.model)  # drained before a copy: a resumed model never repeats
         if changed and self._checkpoints:
             self._checkpoint()
@@ -496,28 +509,77 @@ class FusionMeasure(Measure):
                 type(old_model).__qualname__,
             )
         self._first_t = state.get("_first_t", self._first_t)
+        for key in ("_last_t", "_late", "_first_late_t", "_resumed", "_dropped0", "_marker"):
+            if key in state:
+                setattr(self, key, state[key])
         self._fused = {**state.get("_fused", {}), **self._fused}
         self._copies = state.get("_copies", self._copies)
         pending = [entry[-1] for entry in state.get("_held", ())]
         old_inbox = state.get("_inbox")
         if old_inbox is not None:
             pending += [as_recorded(s) for s in old_inbox.drain()]
+            self._dropped0 += getattr(old_inbox, "dropped", 0)
         if self._inbox is not None:
             for s in pending:
                 heapq.heappush(self._held, (s.t, s.name, s.node, s.seq, s))
                 self._newest = max(self._newest, s.t)
 
-    def _record_start(self, t: float) -> None:
-        """Write the first fused sample's time to ``<run>/measures/<name>_<node>.start.json``
-        so ``hera replay --start-like <node>`` can start the model exactly there."""
+    def _marker_path(self) -> Path | None:
         if self.ctx.run_dir is None:
+            return None
+        return start_marker(Path(self.ctx.run_dir) / "measures", self.ctx.spec.name, self.ctx.node)
+
+    def _record_start(self) -> None:
+        """Write the first sample's time to ``<run>/measures/<name>_<node>.start.json`` so
+        ``hera replay --start-like <node>`` can start the model exactly there."""
+        self._late, self._first_late_t, self._resumed, self._dropped0 = 0, None, 0, 0
+        self._write_marker(force=True)
+
+    def _live_start(self) -> LiveStart | None:
+        """The start marker as it stands (:class:`~hera.recordings.LiveStart`): in period
+        mode the model is given the newest samples only, which no replay repeats (counts
+        unknown)."""
+        if self._first_t is None:
+            return None
+        if self._inbox is None:
+            return LiveStart(self._first_t, None, None, None, None)
+        return LiveStart(
+            self._first_t,
+            self._late,
+            self._first_late_t,
+            self._dropped0 + self._inbox.dropped,
+            self._resumed,
+        )
+
+    def _write_marker(self, force: bool = False) -> None:
+        """Write the start marker when it changed, at most every CHECKPOINT_S (``force``:
+        now)."""
+        path, live = self._marker_path(), self._live_start()
+        if path is None or live is None or live == self._marker:
             return
-        path = start_marker(Path(self.ctx.run_dir) / "measures", self.ctx.spec.name, self.ctx.node)
+        now = time.monotonic()
+        if not force and now - self._marker_at < CHECKPOINT_S:
+            return
+        self._marker_at = now
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(json.dumps({"first_sample_t": t}))
+            write_start(path, live)
+            self._marker = live
         except OSError as e:  # a full disk must not stop the fusion
             self.ctx.log.warning("cannot record the model's start: %s", e)
+
+    def _carry_marker(self) -> None:
+        """A model resumed from a checkpoint keeps its start marker, one resume more (the
+        samples since the checkpoint never reached it)."""
+        path = self._marker_path()
+        try:
+            live = read_start(path) if path is not None and path.exists() else None
+        except ValueError:
+            live = None
+        if live is not None:
+            self._late, self._first_late_t = live.late or 0, live.first_late_t
+            self._resumed, self._dropped0 = live.resumed or 0, live.dropped or 0
+        self._resumed += 1
 
     def _report(self, fused: int) -> None:
         """Status counters: samples fused, dropped (backlog), and the model's own
@@ -529,6 +591,7 @@ class FusionMeasure(Measure):
         c.update(model_counters(self.model))
 
     def close(self) -> None:
+        self._write_marker(force=True)
         if self._inbox is not None:
             self._inbox.close()
 

@@ -10,9 +10,11 @@ last ``_``.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 
 from hera.store import Sample
@@ -35,8 +37,71 @@ def measures_dir(folder: str | Path) -> Path:
 
 def start_marker(folder: str | Path, name: str, node: str) -> Path:
     """``folder/<name>_<node>.start.json``: where a live fusion model records the time of
-    the first sample it fused (read by ``hera replay --start-like``)."""
+    the first sample it was given and what keeps a replay from repeating it
+    (:class:`LiveStart`; read by ``hera replay --start-like``)."""
     return Path(folder) / f"{name}_{node}.start.json"
+
+
+@dataclass(frozen=True)
+class LiveStart:
+    """What a live fusion model records in its start marker (JSON object, these keys):
+
+    - ``first_sample_t``: the measurement time (epoch s) of the first sample it was given;
+    - ``late``: samples it was given out of time order (later than its ``reorder_s``),
+      ``first_late_t`` the first one's time (or null);
+    - ``dropped``: samples its inbox dropped to keep up (``backlog``);
+    - ``resumed``: times it resumed from a checkpoint (the samples in between never
+      reached it).
+
+    A replay from ``first_sample_t`` gives the live model's very estimates when all three
+    counts are 0 and the recordings hold what the model's node received. The counts are
+    None in a marker written before they were recorded (unknown).
+    """
+
+    first_sample_t: float
+    late: int | None = 0
+    first_late_t: float | None = None
+    dropped: int | None = 0
+    resumed: int | None = 0
+
+    @property
+    def exact(self) -> bool | None:
+        """Whether nothing kept the live model from being replayed exactly (None: unknown)."""
+        counts = (self.late, self.dropped, self.resumed)
+        if any(c is None for c in counts):
+            return None
+        return not any(counts)
+
+
+def write_start(path: str | Path, live: LiveStart) -> None:
+    """Write ``live`` to the start marker ``path`` (replaced whole)."""
+    Path(path).write_text(json.dumps(dataclasses.asdict(live)))
+
+
+def read_start(path: str | Path) -> LiveStart:
+    """The start marker at ``path``; RecordingError naming the file and key when it is not
+    one."""
+    try:
+        raw = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as e:
+        raise RecordingError(f"{path}: not a start marker ({e})") from None
+    if not isinstance(raw, dict):
+        raise RecordingError(f"{path}: not a start marker (a JSON object is expected)")
+    try:
+        first = float(raw["first_sample_t"])
+    except (KeyError, TypeError, ValueError):
+        raise RecordingError(f"{path}: first_sample_t must be a number") from None
+    values: dict = {"first_sample_t": first}
+    for key in ("late", "dropped", "resumed"):
+        v = raw.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 0):
+            raise RecordingError(f"{path}: {key} must be an integer >= 0, got {v!r}")
+        values[key] = v
+    late_t = raw.get("first_late_t")
+    if late_t is not None and (isinstance(late_t, bool) or not isinstance(late_t, (int, float))):
+        raise RecordingError(f"{path}: first_late_t must be a number or null, got {late_t!r}")
+    values["first_late_t"] = None if late_t is None else float(late_t)
+    return LiveStart(**values)
 
 
 def split_stem(stem: str, names: Iterable[str] = ()) -> tuple[str, str]:

@@ -27,7 +27,7 @@ from hera.fusion import (
     time_order,
 )
 from hera.plugins import find_measure
-from hera.recordings import SOURCE_FILE, CsvWriter, read_recordings, recorded_time
+from hera.recordings import SOURCE_FILE, CsvWriter, LiveStart, read_recordings, recorded_time
 from hera.schema import did_you_mean
 from hera.smoothing import NotSmoothable, SmoothedRun, smoothed_dir
 from hera.spec import ClusterSpec, load_spec
@@ -65,21 +65,53 @@ def live_schedule(recordings: str | Path, node: str) -> dict[str, tuple[float, s
     """For each model that ``node`` ran live: the time of the first sample it was given (from the
     ``.start.json`` the fusion measure wrote, else its first estimate) and the instants
     (epoch microseconds) of its live estimates."""
-    from hera.recordings import measures_dir, read_csv, start_marker
+    from hera.recordings import measures_dir, read_csv
 
     out = {}
     folder = measures_dir(recordings)
+    markers = live_markers(recordings, node)
     for path in folder.glob(f"*_{node}.csv"):
         name = path.stem[: -len(node) - 1]
         rows = read_csv(path, name, node)
         if not rows:
             continue
-        start = rows[0].t
-        marker = start_marker(folder, name, node)
-        if marker.exists():
-            start = float(json.loads(marker.read_text())["first_sample_t"])
+        marker = markers.get(name)
+        start = rows[0].t if marker is None else marker.first_sample_t
         out[name] = (start, {round(r.t * 1e6) for r in rows})
     return out
+
+
+def live_markers(recordings: str | Path, node: str) -> dict[str, LiveStart]:
+    """The start markers (:class:`~hera.recordings.LiveStart`) of the models ``node`` ran
+    live, by model name; RecordingError naming a marker that cannot be read."""
+    from hera.recordings import measures_dir, read_start
+
+    suffix = f"_{node}.start.json"
+    return {
+        p.name[: -len(suffix)]: read_start(p)
+        for p in sorted(measures_dir(recordings).glob(f"*{suffix}"))
+    }
+
+
+def why_not_exact(name: str, node: str, live: LiveStart) -> str | None:
+    """One sentence on what keeps a replay of ``name`` from repeating its live estimates on
+    ``node`` (None: nothing recorded does, or the marker does not say)."""
+    if live.exact is not False:
+        return None
+    parts = []
+    if live.late:
+        at = ""
+        if live.first_late_t is not None:
+            at = f", the first {live.first_late_t - live.first_sample_t:.3f} s after its start"
+        parts.append(f"was given {live.late} sample(s) out of time order{at}")
+    if live.dropped:
+        parts.append(f"dropped {live.dropped} sample(s) to keep up")
+    if live.resumed:
+        parts.append(f"resumed from a checkpoint {live.resumed} time(s)")
+    return (
+        f"{name}: live on {node} it {' and '.join(parts)}; the replay may differ from there"
+        " (a larger reorder_s or backlog keeps every sample in its place)"
+    )
 
 
 def dependency_order(

@@ -5,6 +5,7 @@ scored against a reference series when their world has no truth."""
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -15,7 +16,7 @@ from harness import cluster_env
 
 from hera.evaluate import by_model, evaluate
 from hera.nodes.offline import simulate
-from hera.recordings import CsvWriter
+from hera.recordings import CsvWriter, LiveStart, read_csv, start_marker, write_start
 from hera.replay import dependency_order
 from hera.spec import load_spec
 
@@ -199,3 +200,36 @@ def test_replay_runs_on_the_specs_backend_unless_told_and_both_agree(sim, tmp_pa
     assert a.shape == b.shape and len(a) > 1000
     np.testing.assert_allclose(a[:30], b[:30], rtol=0, atol=1e-12)
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-4)
+
+
+def test_start_like_says_which_live_models_it_cannot_repeat(sim, tmp_path):
+    """A live model whose start marker records samples given out of time order is named,
+    with what happened; one given every sample in order is not."""
+    run = tmp_path / "run"
+    shutil.copytree(sim, run)
+    proc = hera(
+        "replay",
+        str(run),
+        "--out",
+        str(run),
+        "--models",
+        "e4,e6",
+        "--node",
+        "computer",
+        tmp=tmp_path,
+    )
+    assert proc.returncode == 0, proc.stderr
+    measures = run / "measures"
+    first = read_csv(measures / "omega_acc_computer.csv", "omega_acc", "computer")[0].t
+    write_start(
+        start_marker(measures, "omega_acc", "computer"), LiveStart(first, 2, first + 1.5, 0, 0)
+    )
+    write_start(start_marker(measures, "track_sonar", "computer"), LiveStart(first, 0, None, 0, 0))
+    proc = hera("replay", str(run), "--out", str(tmp_path / "out"), "--models", "e4,e6",
+                "--start-like", "computer", tmp=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert (
+        "omega_acc: live on computer it was given 2 sample(s) out of time order, the first"
+        " 1.500 s after its start; the replay may differ from there" in proc.stdout
+    )
+    assert "track_sonar:" not in proc.stdout
