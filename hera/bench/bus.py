@@ -31,12 +31,12 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from hera.bench.security import LABELS, MODES, secure
 from hera.bus import BusConfig, open_session
 from hera.client import ClusterClient
 from hera.launcher import node_command
 from hera.security.access import OPERATOR
-from hera.security.credentials import cert_hosts, secured
-from hera.spec import load_spec
+from hera.security.credentials import secured
 from hera.supervisor import FAST_CRASH_S
 from hera.wire import encode
 
@@ -103,41 +103,29 @@ def running(spec_text: str | None, spec_path: Path | None = None) -> Iterator[Cl
                 proc.wait()
 
 
-SECURITY = {
-    "none": "[security]\nauth = false\naccess_control = false\n",
-    "auth": "",  # the default: user/password from the run's secret
-    "tls": '[security]\ntls = true\ncerts = "{certs}"\n',
-}
-"""The security modes compared by :func:`security_cost` (spec text appended to PAIR)."""
-
-
 def latency(period: float, seconds: float, security: str = "auth") -> dict[str, float]:
     """Transit p50/p99 (ms) of node a's samples into node b's store at 1/period Hz, with
-    the given :data:`SECURITY` mode."""
+    the given security mode (:data:`hera.bench.security.MODES`)."""
     text = PAIR.format(name=f"lat{int(1 / period)}", period=period)
-    with tempfile.TemporaryDirectory(prefix="hera-bench-certs-") as certs:
-        if security == "tls":
-            (Path(certs) / "spec.toml").write_text(text)
-            spec = load_spec(Path(certs) / "spec.toml")
-            from hera.security.certs import make_certs  # the tls extra
-
-            make_certs(certs, spec.name, cert_hosts(spec))
-        with running(text + SECURITY[security].format(certs=certs)) as c:
-            deadline = time.monotonic() + 30  # the window starts once a's stream reaches b
-            while "a" not in c.query("b", "status")["b"]["transit_ms"]:
-                if time.monotonic() > deadline:
-                    raise RuntimeError("node b received no sample of node a within 30 s")
-                time.sleep(0.1)
-            time.sleep(seconds)
-            return c.query("b", "status")["b"]["transit_ms"]["a"]
+    with (
+        tempfile.TemporaryDirectory(prefix="hera-bench-certs-") as certs,
+        running(secure(text, security, certs)) as c,
+    ):
+        deadline = time.monotonic() + 30  # the window starts once a's stream reaches b
+        while "a" not in c.query("b", "status")["b"]["transit_ms"]:
+            if time.monotonic() > deadline:
+                raise RuntimeError("node b received no sample of node a within 30 s")
+            time.sleep(0.1)
+        time.sleep(seconds)
+        return c.query("b", "status")["b"]["transit_ms"]["a"]
 
 
 def security_cost(seconds: float, rounds: int) -> dict[str, dict[str, float]]:
     """Median over ``rounds`` alternating rounds of the 1 kHz transit p50 and p99 (ms) in
-    each :data:`SECURITY` mode."""
-    runs: dict[str, list[dict[str, float]]] = {mode: [] for mode in SECURITY}
+    each security mode (:data:`hera.bench.security.MODES`)."""
+    runs: dict[str, list[dict[str, float]]] = {mode: [] for mode in MODES}
     for _ in range(rounds):
-        for mode in SECURITY:
+        for mode in MODES:
             runs[mode].append(latency(0.001, seconds, mode))
     return {
         mode: {q: statistics.median(r[q] for r in rs) for q in ("p50", "p99")}
@@ -317,11 +305,7 @@ def main(argv: list[str]) -> int:
         ("SIGSTOPped node noticed", fmt(obs["sigstop_s"], "s", 3), "<= 3 s", "6-10 s (thesis 5.3)"),
     ]
     base = sec["none"]["p50"]
-    for mode, what in (
-        ("none", "no security"),
-        ("auth", "user/password"),
-        ("tls", "mutual TLS + ACL"),
-    ):
+    for mode, what in LABELS.items():
         p50, p99 = sec[mode]["p50"], sec[mode]["p99"]
         cost = "" if mode == "none" else f" ({100 * (p50 / base - 1):+.0f} % at p50)"
         target = "" if mode == "none" else "<= +30 %"

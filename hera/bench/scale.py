@@ -13,7 +13,11 @@ Measured after a warm-up, over ``--seconds``:
   (seq gaps count as losses);
 - publish-to-store latency (wall clock, one host): p50 of the readers' medians, p99 of the
   worst reader, and p99 of every sample of every reader pooled (the cluster's p99);
-- CPU per node (mean, % of one core) and in total (% of the machine), RSS per node.
+- CPU per node (mean, % of one core) and in total (% of the machine), RSS per node;
+
+each in the security modes of ``--security`` (:mod:`hera.bench.security`: ``auth``, the
+spec's default user and password with access control; ``tls``, mutual TLS with access
+control; ``none``).
 
 Targets (issue 14): 32 nodes, >= 99.9 % delivered and p99 <= 20 ms in the better topology.
 """
@@ -36,6 +40,7 @@ from typing import Any
 import zenoh
 
 from hera.bench.latency import LatencyHistogram
+from hera.bench.security import modes, secure
 from hera.client import ClusterClient
 from hera.launcher import node_command
 from hera.measure import Measure, MeasureContext
@@ -157,10 +162,14 @@ def _cpu(pid: int) -> float:
 
 
 @contextlib.contextmanager
-def cluster(spec: str) -> Iterator[tuple[ClusterClient, subprocess.Popen, Path]]:
+def cluster(
+    spec: str, security: str = "auth"
+) -> Iterator[tuple[ClusterClient, subprocess.Popen, Path]]:
+    """``hera up`` of ``spec`` in ``security`` mode in a temporary folder (its certificates
+    there too), with a client of it; stopped after."""
     with tempfile.TemporaryDirectory(prefix="hera-scale-") as tmp:
         path = Path(tmp) / "spec.toml"
-        path.write_text(spec)
+        path.write_text(secure(spec, security, Path(tmp) / "certs"))
         env = {**os.environ, "HERA_REGISTRY": str(Path(tmp) / "registry")}
         proc = subprocess.Popen(
             node_command(
@@ -192,10 +201,12 @@ def cluster(spec: str) -> Iterator[tuple[ClusterClient, subprocess.Popen, Path]]
                 proc.wait()
 
 
-def run(n: int, topology: str, seconds: float, phases: str = "grid") -> dict[str, float]:
+def run(
+    n: int, topology: str, seconds: float, phases: str = "grid", security: str = "auth"
+) -> dict[str, float]:
     """One configuration; its figures."""
     warmup = 5.0
-    with cluster(spec_text(n, topology, warmup, phases)) as (client, _proc, _tmp):
+    with cluster(spec_text(n, topology, warmup, phases), security) as (client, _proc, _tmp):
         deadline = time.monotonic() + 90
         while len(client.status(timeout=2.0)) < n:
             if time.monotonic() > deadline:
@@ -237,8 +248,16 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--topologies", default="mesh,routers", help="mesh and/or routers")
     ap.add_argument("--phases", default="grid,staggered", help="grid and/or staggered")
     ap.add_argument("--seconds", type=float, default=15.0, help="measuring window per run")
+    ap.add_argument(
+        "--security", default="auth", help="auth (the default), tls and/or none: see above"
+    )
     ap.add_argument("--quick", action="store_true", help="8 nodes, 5 s (smoke test)")
     args = ap.parse_args(argv)
+    try:
+        securities = modes(args.security, "--security")
+    except ValueError as e:
+        print(f"hera bench scale: {e}", file=sys.stderr)
+        return 2
     sizes = [8] if args.quick else [int(x) for x in args.nodes.split(",")]
     phases = ["grid"] if args.quick else args.phases.split(",")
     for p in phases:
@@ -254,19 +273,27 @@ def main(argv: list[str]) -> int:
         flush=True,
     )
     head = (
-        f"{'nodes':>5} {'topology':<8} {'phases':<9} {'delivered %':>11} {'p50 ms':>7} "
-        f"{'p99 ms':>7} {'p99 all':>7} {'CPU/node %':>10} {'machine %':>9} {'RSS MB':>6}"
+        f"{'nodes':>5} {'topology':<8} {'phases':<9} {'security':<8} {'delivered %':>11} "
+        f"{'p50 ms':>7} {'p99 ms':>7} {'p99 all':>7} {'CPU/node %':>10} {'machine %':>9} "
+        f"{'RSS MB':>6}"
     )
     print(head, flush=True)
-    configs = [(n, t, p) for n in sizes for t in args.topologies.split(",") for p in phases]
-    for n, topology, phase in configs:
+    configs = [
+        (n, t, p, sec)
+        for n in sizes
+        for t in args.topologies.split(",")
+        for p in phases
+        for sec in securities
+    ]
+    for n, topology, phase, sec in configs:
+        first = f"{n:>5} {topology:<8} {phase:<9} {sec:<8}"
         try:
-            r = run(n, topology, seconds, phase)
+            r = run(n, topology, seconds, phase, sec)
         except RuntimeError as e:
-            print(f"{n:>5} {topology:<8} {phase:<9} failed: {e}", flush=True)
+            print(f"{first} failed: {e}", flush=True)
             continue
         print(
-            f"{n:>5} {topology:<8} {phase:<9} {r['delivered_pct']:>11.3f} {r['p50_ms']:>7.2f} "
+            f"{first} {r['delivered_pct']:>11.3f} {r['p50_ms']:>7.2f} "
             f"{r['p99_ms']:>7.2f} {r['p99_all_ms']:>7.2f} {r['cpu_node_pct']:>10.1f} "
             f"{r['cpu_machine_pct']:>9.1f} {r['rss_mb']:>6.0f}",
             flush=True,

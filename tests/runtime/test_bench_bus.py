@@ -1,4 +1,4 @@
-"""The bus benchmark runs end to end and prints every figure (values are not asserted:
+"""The bus and scale benchmarks run end to end and print every figure (values are not asserted:
 speed is shown by the benchmark, never by timed assertions)."""
 
 import subprocess
@@ -33,3 +33,19 @@ def test_bench_bus_quick_prints_every_figure(tmp_path):
     ):
         assert figure in rows, out.stdout
         assert "n/a" not in rows[figure], rows[figure]
+
+
+def test_bench_scale_quick_runs_behind_a_router_with_mutual_tls(tmp_path):
+    out = subprocess.run(
+        [sys.executable, "-m", "hera", "bench", "scale", "--quick"]
+        + ["--topologies", "routers", "--security", "tls"],
+        env=cluster_env(tmp_path),
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    rows = [line.split() for line in out.stdout.splitlines() if line.lstrip().startswith("8 ")]
+    assert len(rows) == 1 and rows[0][:4] == ["8", "routers", "grid", "tls"], out.stdout
+    delivered = float(rows[0][4])  # a number, not "failed: ..."
+    assert delivered > 0.0, out.stdout

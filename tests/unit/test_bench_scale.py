@@ -5,6 +5,7 @@ from __future__ import annotations
 import tomllib
 
 from hera.bench.scale import PERIOD, STREAMS, main, spec_text
+from hera.bench.security import secure
 from hera.spec import parse_spec
 
 
@@ -28,3 +29,20 @@ def test_staggered_the_nodes_spread_over_the_period():
 def test_an_unknown_phases_value_is_refused(capsys):
     assert main(["--phases", "grid,random"]) == 2
     assert "--phases: unknown 'random'" in capsys.readouterr().err
+
+
+def test_an_unknown_security_mode_is_refused(capsys):
+    assert main(["--security", "auth,ssh"]) == 2
+    assert "--security: unknown 'ssh'; use none, auth, tls" in capsys.readouterr().err
+
+
+def test_tls_mode_makes_a_certificate_for_every_node_and_router(tmp_path):
+    text = secure(spec_text(4, "routers", 1.0, "staggered"), "tls", tmp_path / "certs")
+    spec = parse_spec(tomllib.loads(text), "scale.toml")
+    assert spec.tls and spec.certs == (tmp_path / "certs").as_posix()
+    made = {p.stem for p in (tmp_path / "certs").glob("*.crt")} | {
+        p.stem for p in (tmp_path / "certs").glob("*.pem")
+    }
+    assert {"n1", "n2", "n3", "n4", "r1"} <= made, made
+    assert secure("x", "auth", tmp_path / "unused") == "x"
+    assert not (tmp_path / "unused").exists()
