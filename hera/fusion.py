@@ -190,9 +190,11 @@ class Copies:
     at the same measurement time. A model fed by it must fuse that estimate once, as
     ``hera replay`` (one instance of the upstream model) does; fusing every copy counts one
     measurement as many times as there are replicas. A sample is a copy when one with the
-    same name, measurement time and values has been seen before, from any node (two
-    sensors never give bit-identical values at the same microsecond). The last ``memory``
-    samples of each name are remembered.
+    same name, measurement time (to the microsecond, as recorded) and values has been seen
+    before, from any node. Two sensors' samples are stamped when read and carry noise, so
+    they do not meet that test; a sensor of few values (a switch) read at the same
+    microsecond by two nodes would, and should then say which it is in its values. The
+    last ``memory`` samples of each name are remembered.
     """
 
     def __init__(self, memory: int = 256) -> None:
