@@ -355,6 +355,11 @@ class FusionMeasure(Measure):
         self._late, self._first_late_t, self._resumed, self._dropped0 = 0, None, 0, 0
         self._marker: LiveStart | None = None  # as last written
         self._marker_at = float("-inf")
+        self._marker_file = None  # <run>/measures/<name>_<node>.start.json
+        if ctx.run_dir is not None:
+            self._marker_file = start_marker(
+                Path(ctx.run_dir) / "measures", ctx.spec.name, ctx.node
+            )
         if self._checkpoints:
             self._resume(args["resume_s"])
         else:
@@ -478,7 +483,7 @@ class FusionMeasure(Measure):
                 raise
             if self._first_t is None:  # the first sample it was given, fused or kept
                 self._first_t = s.t
-                self._record_start()
+                self._write_marker(force=True)  # where hera replay --start-like starts
             if fused:
                 changed += 1
                 if self.every:  # each estimate, as hera replay gives them
@@ -526,17 +531,6 @@ class FusionMeasure(Measure):
                 heapq.heappush(self._held, (s.t, s.name, s.node, s.seq, s))
                 self._newest = max(self._newest, s.t)
 
-    def _marker_path(self) -> Path | None:
-        if self.ctx.run_dir is None:
-            return None
-        return start_marker(Path(self.ctx.run_dir) / "measures", self.ctx.spec.name, self.ctx.node)
-
-    def _record_start(self) -> None:
-        """Write the first sample's time to ``<run>/measures/<name>_<node>.start.json`` so
-        ``hera replay --start-like <node>`` can start the model exactly there."""
-        self._late, self._first_late_t, self._resumed, self._dropped0 = 0, None, 0, 0
-        self._write_marker(force=True)
-
     def _live_start(self) -> LiveStart | None:
         """The start marker as it stands (:class:`~hera.recordings.LiveStart`): in period
         mode the model is given the newest samples only, which no replay repeats (counts
@@ -556,8 +550,11 @@ class FusionMeasure(Measure):
     def _write_marker(self, force: bool = False) -> None:
         """Write the start marker when it changed, at most every CHECKPOINT_S (``force``:
         now)."""
-        path, live = self._marker_path(), self._live_start()
-        if path is None or live is None or live == self._marker:
+        path = self._marker_file
+        if path is None:
+            return
+        live = self._live_start()
+        if live is None or live == self._marker:
             return
         now = time.monotonic()
         if not force and now - self._marker_at < CHECKPOINT_S:
@@ -573,7 +570,7 @@ class FusionMeasure(Measure):
     def _carry_marker(self) -> None:
         """A model resumed from a checkpoint keeps its start marker, one resume more (the
         samples since the checkpoint never reached it)."""
-        path = self._marker_path()
+        path = self._marker_file
         try:
             live = read_start(path) if path is not None and path.exists() else None
         except ValueError:

@@ -33,7 +33,7 @@ class Count:
         return self.t, [float(self.n)]
 
 
-class SumMeasure(FusionMeasure):
+class CountMeasure(FusionMeasure):
     name = "sum"
     model_class = Count
     columns = Count.columns
@@ -41,7 +41,7 @@ class SumMeasure(FusionMeasure):
 
 def started(tmp_path, **args):
     ctx = make_ctx("sum", period=0.01, run_dir=str(tmp_path))
-    m = SumMeasure()
+    m = CountMeasure()
     m.init({"mode": "arrival", "reorder_s": 0.0, **args}, ctx)
     return ctx, m
 
@@ -96,7 +96,7 @@ def test_a_resumed_model_keeps_its_start_and_counts_the_resume(tmp_path, monkeyp
     offer(ctx, 1, 10.0)
     m.measure()
     m.close()  # the supervisor restarts it; it resumes from the checkpoint in ctx.resources
-    again = SumMeasure()
+    again = CountMeasure()
     again.init({"mode": "arrival", "reorder_s": 0.0}, ctx)
     offer(ctx, 2, 10.3)
     again.measure()
