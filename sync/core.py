@@ -182,12 +182,23 @@ class GroupCore:
 
     # -- terms ----------------------------------------------------------------------------------
 
-    def end_term(self, reason: str) -> list[Reply]:
-        """Demote: forget the slot table; every queued request is dropped."""
+    def end_term(self, reason: str, lost_at: float | None = None) -> list[Reply]:
+        """Demote: forget the slot table; every queued request is dropped.
+
+        ``lost_at``: the term ended because no majority confirmed it in time (its lease
+        ran out, or the confirmation came back too late) at this time; this host then
+        stands back for one lease before it runs again, whatever its rank. It is the one
+        host known to have just failed to reach a majority (cut off, stopped, its link
+        flapping): the hosts that kept in touch elect one of theirs meanwhile, where it
+        would otherwise be first to run again and, if its link came back for a moment,
+        win the group back only to lose it again at its next cut (liveness only).
+        """
         self.demotions[reason] = self.demotions.get(reason, 0) + 1
         gone = self.table.clear() if self.table else []
         self.term, self.table = None, None
         self.voter.unstick(self.me)
+        if lost_at is not None and len(self.hosts) > 1:
+            self.next_try = max(self.next_try, lost_at + self.timing.lease)
         return [(w.ticket, None) for w in gone]
 
     def close(self) -> list[Reply]:
@@ -202,7 +213,7 @@ class GroupCore:
         if self.closed:
             return out, None
         if self.term is not None and not self.term.tick(now):
-            out += self.end_term("lease or pause")
+            out += self.end_term("lease or pause", lost_at=now)
         if self.term is not None:
             if now - self.renew_sent >= self.timing.renew or self._unbacked():
                 self.renew_sent = now
@@ -271,7 +282,7 @@ class GroupCore:
             elif won:
                 term.confirmed(rnd.asked_at, now)
                 if term.over:
-                    out += self.end_term("late confirmation")
+                    out += self.end_term("late confirmation", lost_at=now)
                 else:
                     self.backed_seq = max(self.backed_seq, rnd.seq)
                     out += self.pump(now)

@@ -107,6 +107,16 @@ class Voter:
     Rule 2 carries safety; with ``promises`` (durable storage) it holds across restarts:
     a changed promise is saved before the yes is given, and loaded at start. Rule 1 only
     matters when the storage was lost; rule 3 only adds refusals.
+
+    "Confirmed" (rule 3, :meth:`leader`) is refreshed by every yes to the leader while it
+    is still fresh here; once it went stale, only when its renewals have been arriving for
+    a whole lease with no gap longer than a lease between them. A backlog of renewals held
+    up in the network (a link that dropped nothing but delivered nothing for a while, then
+    everything at once) arrives after such a gap and all within an instant: the leader that
+    sent it has, by its own lease, already lost its term and sends no more, so it must not
+    make this voter refuse everyone else again. Without that rule a leader behind a
+    flapping link wins the election after each of its cuts (the voters it renewed a moment
+    ago refuse the others) and starves the group.
     """
 
     def __init__(
@@ -119,6 +129,8 @@ class Voter:
         self.epoch, self.candidate = promises.load() if promises is not None else (0, NOBODY)
         self._saved = (self.epoch, self.candidate)
         self.confirmed_at = float("-inf")
+        self.renewed_at = float("-inf")  # the last yes to the promised term
+        self.streak_from = float("-inf")  # the first yes of its run without a gap > lease
         self.save_failures = 0
 
     def request(self, epoch: int, candidate: str, now: float, alive: Callable[[str], bool]) -> bool:
@@ -140,7 +152,13 @@ class Voter:
                 log.error("sync voter %s cannot save its promise, answers no: %s", self.me, e)
                 return False
             self._saved = (epoch, candidate)
-        self.epoch, self.candidate, self.confirmed_at = epoch, candidate, now
+        lease = self.timing.lease
+        same = (epoch, candidate) == (self.epoch, self.candidate)
+        if not same or now - self.renewed_at > lease:
+            self.streak_from = now
+        if not same or now - self.confirmed_at < lease or now - self.streak_from >= lease:
+            self.confirmed_at = now  # see the class docstring
+        self.epoch, self.candidate, self.renewed_at = epoch, candidate, now
         return True
 
     def would(self, epoch: int, candidate: str, now: float, alive: Callable[[str], bool]) -> bool:

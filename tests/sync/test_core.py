@@ -148,3 +148,40 @@ def test_an_election_needs_the_candidates_own_vote():
     elect = Round("elect", 1, T.quiet, 1)
     core.round_done(elect, [yes("b", 1), yes("c", 1)], T.quiet)
     assert core.term is None  # a majority, but its own promise was not saved
+
+
+@pytest.mark.parametrize("how", ["lease", "late confirmation"])
+def test_a_leader_that_lost_its_majority_stands_back_one_lease_before_running_again(how):
+    """The host that just failed to reach a majority in time runs last: the others, which
+    stayed in touch, elect one of theirs first (a leader behind a flapping link would
+    otherwise win the group back at each healing, and lose it at the next cut)."""
+    core, t = elected()
+    _, renew = core.step(t + T.renew * 1.01)
+    assert renew is not None
+    if how == "lease":
+        lost = t + T.lease + 0.01  # no renewal came back: the lease runs out
+        core.step(lost)
+    else:
+        lost = t + T.lease + 0.01  # the confirmation comes back after the lease ran out
+        core.round_done(renew, [yes("a", 1), yes("b", 1)], lost)
+    assert core.term is None
+    now = lost
+    while now < lost + T.lease - 0.005:  # rank 0, yet it does not run for a lease
+        _, rnd = core.step(now)
+        assert rnd is None, now - lost
+        now += 0.005
+    _, rnd = core.step(lost + T.lease + 0.001)
+    assert rnd is not None and rnd.kind == "probe"
+
+
+def test_a_lone_host_does_not_stand_back():
+    """Nobody else can lead a group of one: it runs again at once."""
+    core = GroupCore("a", ["a"], T, 0.0)
+    now = T.quiet
+    _, probe = core.step(now)
+    _, elect = core.round_done(probe, [yes("a", 0, "")], now)
+    core.round_done(elect, [yes("a", 1)], now)
+    assert core.term is not None
+    lost = now + T.lease + 0.01
+    _, rnd = core.step(lost)
+    assert core.term is None and rnd is not None and rnd.kind == "probe"

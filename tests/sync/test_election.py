@@ -72,6 +72,43 @@ def test_voter_is_sticky_while_its_leader_is_fresh_and_alive():
     assert v.request(3, "b", t + 0.31 + T.lease, always)  # stale: may switch
 
 
+def test_a_backlog_of_renewals_after_a_cut_does_not_make_the_voter_sticky_again():
+    """A link that delivered nothing for 0.4 s, then everything at once (what a blackholed
+    TCP link does when it heals): the leader behind it lost its term by its own lease, so
+    its held-up renewals must not make this voter refuse the others again."""
+    v = ready_voter()
+    t = T.quiet
+    assert v.request(1, "a", t, always)
+    for k in range(1, 4):  # renewals every renew period: fresh all along
+        assert v.request(1, "a", t + k * T.renew, always)
+        assert v.leader(t + k * T.renew) == "a"
+    last = t + 3 * T.renew
+    heal = last + 0.4  # the cut: nothing arrives for longer than a lease
+    for k in range(6):  # the backlog, within 3 ms: confirmed (it is the promised term) ...
+        assert v.request(1, "a", heal + k * 0.0005, always)
+    assert v.leader(heal + 0.003) is None  # ... but the leader is not fresh again
+    assert v.would(2, "b", heal + 0.003, always)  # so another candidate may be elected
+
+
+def test_renewals_that_keep_coming_for_a_lease_make_a_stale_leader_fresh_again():
+    """A voter that was itself cut off from a leader that kept its term (the others renewed
+    it) follows that leader again once its renewals have kept coming for a whole lease,
+    however often they come (back-to-back rounds backing slot requests included)."""
+    v = ready_voter()
+    t = T.quiet
+    assert v.request(1, "a", t, always)
+    back = t + 0.5  # stale since t + L
+    k, now = 0, back
+    while now < back + T.lease:  # rounds 5 ms apart: the leader's renewals and backing rounds
+        assert v.request(1, "a", now, always)
+        assert v.leader(now) is None, now - back
+        k += 1
+        now = back + k * 0.005
+    assert v.request(1, "a", now, always)
+    assert v.leader(now) == "a"
+    assert not v.would(2, "b", now, always)
+
+
 def test_pre_vote_changes_nothing():
     v = ready_voter()
     assert v.would(5, "a", T.quiet, always)
