@@ -158,11 +158,10 @@ def test_a_leader_that_lost_its_majority_stands_back_one_lease_before_running_ag
     core, t = elected()
     _, renew = core.step(t + T.renew * 1.01)
     assert renew is not None
+    lost = t + T.lease + 0.01
     if how == "lease":
-        lost = t + T.lease + 0.01  # no renewal came back: the lease runs out
-        core.step(lost)
-    else:
-        lost = t + T.lease + 0.01  # the confirmation comes back after the lease ran out
+        core.step(lost)  # no renewal came back: the lease has run out
+    else:  # the confirmation comes back after the lease ran out
         core.round_done(renew, [yes("a", 1), yes("b", 1)], lost)
     assert core.term is None
     now = lost
