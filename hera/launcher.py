@@ -50,6 +50,7 @@ from hera.keys import Keys
 from hera.node import EXIT_CONFIG, FATAL
 from hera.panel import estimates_panels
 from hera.plugins import AppIndex
+from hera.ports import free_ports
 from hera.preflight import check_spec
 from hera.rundirs import new_run_dir, prepare_run_dir, state_dir
 from hera.security.access import OPERATOR
@@ -149,21 +150,6 @@ def prefer_node(samples: list[dict], node: str) -> list[dict]:
     for s in sorted(samples, key=lambda s: (s["node"] != node, s["node"])):
         best.setdefault(s["name"], s)
     return list(best.values())
-
-
-def free_ports(host: str, n: int) -> list[int]:
-    """``n`` distinct TCP ports that were free on ``host`` a moment ago."""
-    socks, ports = [], []
-    try:
-        for _ in range(n):
-            s = socket.socket()
-            s.bind((host, 0))
-            socks.append(s)
-            ports.append(s.getsockname()[1])
-    finally:
-        for s in socks:
-            s.close()
-    return ports
 
 
 NODE_MAIN = "import sys; del sys.path[0]; from hera.cli import main; sys.exit(main())"

@@ -55,7 +55,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hera.launcher import free_ports
+from hera.ports import free_ports
 from hera.sync import clock as sync_clock
 
 STATUS_EVERY = 0.05

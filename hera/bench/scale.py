@@ -125,7 +125,7 @@ class Reader(Measure):
 def spec_text(n: int, topology: str, warmup: float, phases: str = "grid") -> str:
     """The benchmark cluster: ``n`` nodes, ``topology`` ``mesh`` or ``routers``, the streams
     on one grid (``phases`` ``grid``) or the nodes' in turn (``staggered``)."""
-    from hera.launcher import free_ports
+    from hera.ports import free_ports
 
     lines = [f'[cluster]\nname = "scale{n}{topology}"\nlease_ms = 3000\n']
     routers = free_ports("127.0.0.1", 0 if topology == "mesh" else (1 if n <= 16 else 2))

@@ -53,8 +53,9 @@ from hera.campaign.schema import (
 from hera.campaign.targets import ClusterView
 from hera.client import ClusterClient, find_run_dir
 from hera.examples import resolve_spec
-from hera.launcher import free_ports, node_command
+from hera.launcher import node_command
 from hera.plugins import find_measure
+from hera.ports import free_ports
 from hera.preflight import check_spec
 from hera.rundirs import new_run_dir
 from hera.security.secret import SECRET_FILE, make_secret

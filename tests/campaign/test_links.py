@@ -23,8 +23,8 @@ from hera.campaign.links import (
     plan_links,
     write_plan,
 )
-from hera.launcher import free_ports
 from hera.node import node_bus
+from hera.ports import free_ports
 from hera.security.access import OPERATOR
 from hera.security.certs import make_certs
 from hera.security.credentials import secured

@@ -247,7 +247,7 @@ def test_injected_faults_through_the_control_plane(cluster, tmp_path):
 
 
 def _free_port() -> int:
-    from hera.launcher import free_ports
+    from hera.ports import free_ports
 
     return free_ports("127.0.0.1", 1)[0]
 

@@ -90,7 +90,29 @@ class Cluster:
             answered.update(self.client.status(0.5))
             return answered >= names
 
-        wait_for(all_answered, timeout, f"{len(names)} nodes answering")
+        try:
+            wait_for(all_answered, timeout, f"{len(names)} nodes answering")
+        except AssertionError as e:
+            raise AssertionError(f"{e}; {self.diagnosis(names - answered)}") from None
+
+    def diagnosis(self, silent: set[str]) -> str:
+        """What the launcher and the ``silent`` nodes' logs say, for a failure message: a
+        cluster that did not come up in CI leaves nothing else behind."""
+        parts = [f"answered: none of {sorted(silent)}"]
+        try:
+            parts.append(f"launcher.json: {json.dumps(self.launcher_state())}")
+        except (OSError, ValueError, KeyError) as e:
+            parts.append(f"launcher.json unreadable ({e})")
+        tails = [("launcher", self.log)] + [
+            (n, self.run_dir / "logs" / f"{n}.log") for n in sorted(silent)
+        ]
+        for what, path in tails:
+            try:
+                lines = path.read_text(errors="replace").splitlines()[-12:]
+            except OSError as e:
+                lines = [f"unreadable ({e})"]
+            parts.append(f"--- {what} log, last lines:\n" + "\n".join(lines))
+        return "\n".join(parts)
 
     def _mine(self) -> bool:
         """Whether launcher.json is this launcher's (a previous run may have left one)."""

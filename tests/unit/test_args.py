@@ -7,8 +7,8 @@ from harness import wait_for
 from hera.args import ArgsStore
 from hera.bus import BusConfig, open_session, tcp_endpoint
 from hera.keys import Keys
-from hera.launcher import free_ports
 from hera.peers import Peers
+from hera.ports import free_ports
 
 
 def test_last_writer_wins_by_timestamp_then_origin():

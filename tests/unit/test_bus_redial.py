@@ -7,7 +7,7 @@ other side began listening 3.7 s late; a cluster then runs seconds without its l
 import time
 
 from hera.bus import CONNECT_RETRY, BusConfig, open_session, tcp_endpoint
-from hera.launcher import free_ports
+from hera.ports import free_ports
 
 
 def test_a_peer_that_starts_listening_late_is_dialled_again_within_the_retry_bound():

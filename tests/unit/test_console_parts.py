@@ -271,7 +271,7 @@ class FakeSample:
 def test_the_console_joins_model_columns_with_the_truth_and_builds_the_panels():
     from hera.console.state import Console
     from hera.examples import resolve_spec
-    from hera.launcher import free_ports
+    from hera.ports import free_ports
     from hera.spec import load_spec
     from hera.wire import encode
 
