@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import shutil
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +27,15 @@ from hera.fusion import (
     time_order,
 )
 from hera.plugins import find_measure
-from hera.recordings import SOURCE_FILE, CsvWriter, LiveStart, read_recordings, recorded_time
+from hera.recordings import (
+    SOURCE_FILE,
+    CsvWriter,
+    LiveStart,
+    RecordingError,
+    read_recordings,
+    recorded_time,
+    split_stem,
+)
 from hera.schema import did_you_mean
 from hera.smoothing import NotSmoothable, SmoothedRun, smoothed_dir
 from hera.spec import ClusterSpec, load_spec
@@ -61,24 +69,51 @@ CSV_RESOLUTION_S = 1e-6
 """Recorded timestamps are milliseconds with three decimals."""
 
 
-def live_schedule(recordings: str | Path, node: str) -> dict[str, tuple[float, set[int]]]:
-    """For each model that ``node`` ran live: the time of the first sample it was given (from the
-    ``.start.json`` the fusion measure wrote, else its first estimate) and the instants
-    (epoch microseconds) of its live estimates."""
+@dataclass(frozen=True)
+class LiveSchedule:
+    """What a replay needs to repeat one model of a live node (``hera replay --start-like``).
+
+    ``start``: the time (epoch s) of the first sample the live model was given;
+    ``instants``: the instants (epoch microseconds) of its live estimates on this node, the
+    ones the replay writes; ``published``: those of every node's replica of the model. A
+    fusion measure publishes the newest estimate of each of its steps, and two replicas
+    step at different moments, so each publishes estimates the other superseded; a live
+    model fed by this one took every replica's (each once, :class:`hera.fusion.Copies`), so
+    the replay feeds it the estimates at all of ``published``.
+    """
+
+    start: float
+    instants: frozenset[int]
+    published: frozenset[int]
+
+
+def live_schedule(recordings: str | Path, node: str) -> dict[str, LiveSchedule]:
+    """For each model that ``node`` ran live, its :class:`LiveSchedule`: the start from the
+    ``.start.json`` the fusion measure wrote (else its first estimate), the instants from
+    the recorded estimates of ``node`` and of every other node that ran it."""
     from hera.recordings import measures_dir, read_csv
 
-    out = {}
     folder = measures_dir(recordings)
     markers = live_markers(recordings, node)
+    mine = {}
     for path in folder.glob(f"*_{node}.csv"):
         name = path.stem[: -len(node) - 1]
         rows = read_csv(path, name, node)
-        if not rows:
+        if rows:
+            start = rows[0].t if name not in markers else markers[name].first_sample_t
+            mine[name] = (start, frozenset(round(r.t * 1e6) for r in rows))
+    published: dict[str, set[int]] = {name: set(instants) for name, (_, instants) in mine.items()}
+    for path in folder.glob("*.csv"):
+        try:
+            name, other = split_stem(path.stem, mine)
+        except RecordingError:  # not a <name>_<node>.csv: not an estimate of a replica
             continue
-        marker = markers.get(name)
-        start = rows[0].t if marker is None else marker.first_sample_t
-        out[name] = (start, {round(r.t * 1e6) for r in rows})
-    return out
+        if name in mine and other != node:
+            published[name].update(round(r.t * 1e6) for r in read_csv(path, name, other))
+    return {
+        name: LiveSchedule(start, instants, frozenset(published[name]))
+        for name, (start, instants) in mine.items()
+    }
 
 
 def live_markers(recordings: str | Path, node: str) -> dict[str, LiveStart]:
@@ -114,6 +149,38 @@ def why_not_exact(name: str, node: str, live: LiveStart) -> str | None:
     )
 
 
+def why_inputs_not_exact(
+    recordings: str | Path, models: Mapping[str, tuple[str, Mapping[str, Any]]]
+) -> dict[str, str]:
+    """For each of ``models`` (name -> (measure use, model params), as :func:`replay` takes
+    them) fed by another of them: one sentence when a live replica of that input, on any
+    node, was not repeatable (:func:`why_not_exact`). Its estimates were fed live to the
+    model on every node, and the replay gives other ones in their place, so the model's
+    replay may differ from its live estimates although its own start marker is clean."""
+    from hera.recordings import measures_dir, read_start
+
+    inputs_of = {
+        name: [i for i in find_measure(use).make_model(params, name).inputs if i in models]
+        for name, (use, params) in models.items()
+    }
+    wanted = {i for ins in inputs_of.values() for i in ins}
+    replicas: dict[str, list[tuple[str, LiveStart]]] = {}
+    for path in sorted(measures_dir(recordings).glob("*.start.json")):
+        try:
+            name, node = split_stem(path.name[: -len(".start.json")], wanted)
+        except RecordingError:
+            continue
+        if name in wanted:
+            replicas.setdefault(name, []).append((node, read_start(path)))
+    out = {}
+    for name, inputs in inputs_of.items():
+        whys = [why_not_exact(i, n, live) for i in inputs for n, live in replicas.get(i, [])]
+        first = next((w for w in whys if w is not None), None)
+        if first is not None:
+            out[name] = f"{name} is fed by it and may differ too: {first}"
+    return out
+
+
 def dependency_order(
     instances: Mapping[str, Any],
 ) -> list[str]:
@@ -138,7 +205,7 @@ def replay(
     out: str | Path,
     models: Mapping[str, tuple[str, Mapping[str, Any]]],
     node: str = "replay",
-    like: Mapping[str, tuple[float, set[int]]] | None = None,
+    like: Mapping[str, LiveSchedule] | None = None,
     progress: Callable[[int, int], None] | None = None,
     smooth: bool = False,
     say: Callable[[str], None] | None = None,
@@ -153,9 +220,10 @@ def replay(
     ``node``), not the recorded ones of the same name. The recorded estimates of a model
     that ran on several nodes are fused once (:class:`hera.fusion.Copies`), as live.
 
-    ``like`` (model name -> (start, instants), see :func:`live_schedule`) makes a replay of
-    a live node: each model starts at the live model's first sample and writes estimates
-    only at the live estimates' instants, so the two are compared on the same estimates.
+    ``like`` (model name -> :class:`LiveSchedule`) makes a replay of a live node: each model
+    starts at the live model's first sample and writes estimates only at the instants of
+    that node's live estimates, so the two are compared on the same estimates; a model fed
+    by it is given the estimates every node's replica published, as it was live.
     ``progress(done, total)`` is told the samples fed so far (all models together).
 
     ``smooth``: also write each model's RTS-smoothed estimates (see :mod:`hera.smoothing`);
@@ -185,7 +253,10 @@ def replay(
     for name in order:
         model = instances[name]
         writer = CsvWriter(out, name, node, model.columns)
-        t_start, instants = (like or {}).get(name, (float("-inf"), None))
+        schedule = (like or {}).get(name)
+        t_start, instants, published = float("-inf"), None, None
+        if schedule is not None:
+            t_start, instants, published = schedule.start, schedule.instants, schedule.published
         t_start -= CSV_RESOLUTION_S  # the recordings' times are rounded to the microsecond
         feed = samples
         upstream = [produced[i] for i in model.inputs if i in produced]
@@ -205,21 +276,23 @@ def replay(
                 if rows is None:
                     rows = [model.estimate()] if changed else []
                 for t, values in rows:
-                    if instants is None or round(t * 1e6) in instants:
+                    us = round(t * 1e6)
+                    if instants is None or us in instants:
                         writer.write(t, values)
+                        if smoother is not None:
+                            smoother.mark(t)
+                    if published is None or us in published:
                         outputs.append(
                             Sample(
                                 name,
                                 node,
-                                writer.seq,
+                                len(outputs) + 1,
                                 recorded_time(t),
                                 0.0,
                                 0.0,
                                 tuple(map(float, values)),
                             )
                         )
-                        if smoother is not None:
-                            smoother.mark(t)
         finally:
             writer.close()
         fed += len(samples)

@@ -233,3 +233,58 @@ def test_start_like_says_which_live_models_it_cannot_repeat(sim, tmp_path):
         " 1.500 s after its start; the replay may differ from there" in proc.stdout
     )
     assert "track_sonar:" not in proc.stdout
+
+
+def _write_rows(run: Path, name: str, node: str, rows) -> None:
+    """Write ``rows`` as ``run/measures/<name>_<node>.csv``."""
+    w = CsvWriter(run, name, node, ("a",) * len(rows[0].values))
+    for r in rows:
+        w.write(r.t, r.values)
+    w.close()
+
+
+def test_start_like_feeds_a_chained_model_what_every_replica_published(sim, tmp_path):
+    """Two replicas of ``bilateration`` step at different moments, so each publishes fixes
+    the other superseded; live, e5 on nav_1 fused the fixes of both (each once). A replay
+    like nav_1 writes bilateration at nav_1's instants but feeds e5 every replica's fixes,
+    and so repeats e5 exactly (it fed nav_1's alone before: a CI run's e5 then differed for
+    10 s after the first fix only the other node had published)."""
+    every = tmp_path / "every"  # e5 fed every fix: what nav_1 fused live
+    proc = hera("replay", str(sim), "--out", str(every), "--models", "e5", "--node", "all",
+                tmp=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    fixes = read_csv(every / "measures" / "bilateration_all.csv", "bilateration", "all")
+    e5 = read_csv(every / "measures" / "track_bilat_all.csv", "track_bilat", "all")
+    assert len(fixes) > 20
+    run = tmp_path / "run"
+    shutil.copytree(sim, run)
+    measures = run / "measures"
+    # nav_1 published two fixes in three, computer the others and half of nav_1's
+    _write_rows(run, "bilateration", "nav_1", [f for i, f in enumerate(fixes) if i % 3])
+    _write_rows(run, "bilateration", "computer", [f for i, f in enumerate(fixes) if i % 3 != 1])
+    _write_rows(run, "track_bilat", "nav_1", e5)
+    for name in ("bilateration", "track_bilat"):  # given every sample from the start, in order
+        write_start(start_marker(measures, name, "nav_1"), LiveStart(0.0))
+    write_start(start_marker(measures, "bilateration", "computer"), LiveStart(0.0))
+
+    out = tmp_path / "like"
+    proc = hera("replay", str(run), "--out", str(out), "--models", "e5",
+                "--start-like", "nav_1", tmp=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "may differ" not in proc.stdout, proc.stdout
+    got = read_csv(out / "measures" / "bilateration_replay.csv", "bilateration", "replay")
+    assert [f.t for f in got] == [f.t for i, f in enumerate(fixes) if i % 3]  # nav_1's own
+    again = read_csv(out / "measures" / "track_bilat_replay.csv", "track_bilat", "replay")
+    assert [(r.t, r.values) for r in again] == [(r.t, r.values) for r in e5]
+
+    # a replica that was given samples out of time order: e5's replay is said to be at risk
+    write_start(
+        start_marker(measures, "bilateration", "computer"), LiveStart(0.0, 2, fixes[5].t, 0, 0)
+    )
+    proc = hera("replay", str(run), "--out", str(tmp_path / "late"), "--models", "e5",
+                "--start-like", "nav_1", tmp=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert (
+        "track_bilat is fed by it and may differ too: bilateration: live on computer it was "
+        "given 2 sample(s) out of time order" in proc.stdout
+    ), proc.stdout
