@@ -98,7 +98,7 @@ class Cluster:
     def diagnosis(self, silent: set[str]) -> str:
         """What the launcher and the ``silent`` nodes' logs say, for a failure message: a
         cluster that did not come up in CI leaves nothing else behind."""
-        parts = [f"answered: none of {sorted(silent)}"]
+        parts = [f"never answered: {sorted(silent)}"]
         try:
             parts.append(f"launcher.json: {json.dumps(self.launcher_state())}")
         except (OSError, ValueError, KeyError) as e:
