@@ -110,6 +110,7 @@ def test_bad_sensor_settings_are_refused_naming_them(kwargs, words):
         ({"p0": [0, 1]}, "p0"),
         ({"gate": 1.5}, "gate"),
         ({"lost_window": 1}, "lost_window"),
+        ({"iterations": 0}, "iterations"),
     ],
 )
 def test_bad_tracker_settings_are_refused_through_the_measure(settings, word):
@@ -146,16 +147,19 @@ def test_constant_velocity_rmse_is_under_half_a_cm_with_the_medium_long_pair(wor
 
 def test_from_the_poor_initial_guess_within_a_cm_in_a_second():
     """Seed scenario 4 (start at 50 cm, target at 70): the error is within 1 cm, and its RMS
-    over the next second too, after <= 1 s (measured 0.07-0.25 s)."""
+    over the next second too, after <= 1 s (measured 0.00-0.18 s; the plain EKF, one
+    linearisation at the prediction, 0.06-0.82 s here and 2.6 s at seed 5 when the medium
+    sensor's reading comes first). The plain EKF's first update leaves the estimate several
+    cm short, the iterated one takes the reading for what it holds."""
     for seed in SEEDS:
         _, scores = track(
             {"scenario": "ir_stationary", "distance_cm": 70.0},
             seed,
-            {"ekf": IrTracker(x0=[50.0, 0.0])},
+            {"ekf": IrTracker(x0=[50.0, 0.0]), "plain": IrTracker(x0=[50.0, 0.0], iterations=1)},
             duration=10.0,
         )
-        s = scores["ekf"]
-        assert abs(s["series"].column("distance [cm]")[0] - 70.0) > 2.0  # it starts off
+        s, plain = scores["ekf"], scores["plain"]
+        assert abs(plain["series"].column("distance [cm]")[0] - 70.0) > 2.0  # it starts off
         assert s["converge_s"] is not None and s["converge_s"] <= 1.0, (seed, s["converge_s"])
         assert s["rmse_cm"] <= 0.6, (seed, s["rmse_cm"])
 
