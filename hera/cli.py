@@ -717,13 +717,20 @@ def _replay(args: argparse.Namespace) -> int:
     for name, n in counts.items():
         print(f"{name:<20} {n:>7} estimates -> {Path(args.out) / 'measures'}")
     if args.start_like:
-        from hera.replay import live_markers, why_inputs_not_exact, why_not_exact
+        from hera.replay import (
+            live_markers,
+            why_inputs_not_exact,
+            why_not_exact,
+            why_recordings_incomplete,
+        )
 
         for name, live in live_markers(args.recordings, args.start_like).items():
             why = why_not_exact(name, args.start_like, live) if name in counts else None
             if why is not None:
                 print(why)
         for why in why_inputs_not_exact(args.recordings, chosen).values():
+            print(why)
+        for why in why_recordings_incomplete(args.recordings, chosen, like or {}).values():
             print(why)
     return 0
 

@@ -15,6 +15,7 @@ import json
 import shutil
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, replace
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -178,6 +179,66 @@ def why_inputs_not_exact(
         first = next((w for w in whys if w is not None), None)
         if first is not None:
             out[name] = f"{name} is fed by it and may differ too: {first}"
+    return out
+
+
+def why_recordings_incomplete(
+    recordings: str | Path,
+    models: Mapping[str, tuple[str, Mapping[str, Any]]],
+    like: Mapping[str, LiveSchedule],
+) -> dict[str, str]:
+    """For each of ``models`` (as :func:`replay` takes them) replayed like a live node
+    (``like``, from :func:`live_schedule`): one sentence when a recorded stream it takes,
+    itself or through a model it is fed by, skips seqs after the model's live start. A node
+    publishes every seq of a stream in turn, so a gap is samples the log node did not
+    record (the bus dropped them on its link, under load); the model's own node may have
+    fused them live, and the replay then differs from there."""
+    from hera.recordings import measures_dir, read_csv
+
+    inputs_of = {
+        name: set(find_measure(use).make_model(params, name).inputs)
+        for name, (use, params) in models.items()
+    }
+
+    def recorded(name: str, seen: frozenset = frozenset()) -> set[str]:
+        out = {i for i in inputs_of[name] if i not in models}
+        for i in inputs_of[name] & set(models) - seen - {name}:
+            out |= recorded(i, seen | {name})
+        return out
+
+    wanted = {i for name in models for i in recorded(name)}
+    gaps: dict[str, list[tuple[float, str, int]]] = {}  # name -> (time, node, missing)
+    for path in sorted(measures_dir(recordings).glob("*.csv")):
+        try:
+            name, node = split_stem(path.stem, wanted)
+        except RecordingError:
+            continue
+        if name not in wanted:
+            continue
+        rows = read_csv(path, name, node)
+        for a, b in pairwise(rows):
+            if b.seq > a.seq + 1:
+                gaps.setdefault(name, []).append((b.t, node, b.seq - a.seq - 1))
+    out = {}
+    for name in models:
+        schedule = like.get(name)
+        if schedule is None:
+            continue
+        found = sorted(
+            (t, i, node, n)
+            for i in recorded(name)
+            for t, node, n in gaps.get(i, [])
+            if t >= schedule.start
+        )
+        if found:
+            t, i, node, _ = found[0]
+            missing = sum(n for *_, n in found)
+            out[name] = (
+                f"{name}: the recordings miss {missing} sample(s) of its inputs (seqs "
+                f"skipped; the first of {i} from {node}, {t - schedule.start:.3f} s after "
+                "its start) that the live model may have fused; the replay may differ from "
+                "there"
+            )
     return out
 
 

@@ -17,7 +17,12 @@ from harness import cluster_env
 from hera.evaluate import by_model, evaluate
 from hera.nodes.offline import simulate
 from hera.recordings import CsvWriter, LiveStart, read_csv, start_marker, write_start
-from hera.replay import dependency_order
+from hera.replay import (
+    LiveSchedule,
+    dependency_order,
+    model_args_from_spec,
+    why_recordings_incomplete,
+)
 from hera.spec import load_spec
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -288,3 +293,29 @@ def test_start_like_feeds_a_chained_model_what_every_replica_published(sim, tmp_
         "track_bilat is fed by it and may differ too: bilateration: live on computer it was "
         "given 2 sample(s) out of time order" in proc.stdout
     ), proc.stdout
+
+
+def test_a_gap_in_the_recorded_seqs_names_the_models_it_may_change(sim, tmp_path):
+    """A sample the log node did not record (its link dropped it under load, as in a CI
+    run: sonar_1's seq 43 missing) may be one a model's own node fused: each model that
+    takes that stream, itself or through a model it is fed by, is named, with the time from
+    its start; a gap before a model's start, or in a stream it does not take, is not."""
+    models = model_args_from_spec(load_spec(ROOT / "deploy" / "train.toml"))
+    chosen = {n: models[n] for n in ("bilateration", "track_bilat", "omega_acc")}
+    run = tmp_path / "run"
+    shutil.copytree(sim, run)
+    like = {n: LiveSchedule(0.0, frozenset(), frozenset()) for n in chosen}
+    assert why_recordings_incomplete(run, chosen, like) == {}
+
+    path = run / "measures" / "sonar_sonar_1.csv"
+    rows = path.read_text().splitlines(keepends=True)
+    gone = float(rows[10].split(",")[1]) / 1000.0
+    path.write_text("".join(rows[:10] + rows[11:]))
+    got = why_recordings_incomplete(run, chosen, like)
+    assert set(got) == {"bilateration", "track_bilat"}, got  # omega_acc takes no sonar
+    assert got["track_bilat"].startswith(
+        "track_bilat: the recordings miss 1 sample(s) of its inputs (seqs skipped; the "
+        "first of sonar from sonar_1, "
+    )
+    later = {n: LiveSchedule(gone + 1.0, frozenset(), frozenset()) for n in chosen}
+    assert why_recordings_incomplete(run, chosen, later) == {}
