@@ -12,6 +12,18 @@ One cycle per reading (sec. 11.6.6):
 3. mode likelihoods L_j = N(y_j; 0, S_j), mu_j = L_j c_j / sum(L c);
 4. the output is the mixture: x = sum mu_j x_j, P = sum mu_j (P_j + (x_j - x)(x_j - x)^T).
 
+Modes that do not model a part of the state (a board held still has no velocity or
+acceleration: its filter holds them at zero with no variance) are mixed as Granstrom,
+Willett and Bar-Shalom ("Systematic approach to IMM mixing for unequal dimension states",
+IEEE TAES 51(4), 2015) prescribe: a component of mode i mixed into mode j takes mode j's
+prior for the states mode i lacks, here its covariance ``entry[(i, j)]`` added to P_i (the
+attribute ``entry`` may change between cycles). A board that starts moving then enters the
+moving modes with an unknown acceleration, as it does, and not with the still mode's certain
+zero, which the moving modes, restarted from the still one at every reading, otherwise
+inherit: they cannot explain a move's first readings, and the gate refuses them as
+outliers. (:class:`~hera.models.tof.height.TofHeight` mixes so only when it tries two
+refused readings as a move's start: at every reading it would let outliers in.)
+
 With one mode it is a plain Kalman filter. The filters are
 :class:`hera.estimation.KalmanFilter` objects (their update takes any
 observation block, linear or not); the chi-square gate is applied here, before any filter
@@ -22,7 +34,7 @@ still mode cannot explain is not an outlier).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -50,13 +62,23 @@ def mixture(xs: Sequence[np.ndarray], Ps: Sequence[np.ndarray], w: np.ndarray):
 
 class Imm:
     """IMM over ``filters`` (one per mode, same state), mode probabilities ``mu0`` and
-    leaving ``rates`` (1/s)."""
+    leaving ``rates`` (1/s); ``entry[(i, j)]``: the (n, n) covariance added to mode i's
+    component when it is mixed into mode j (see the module docstring; none by default)."""
 
     def __init__(
-        self, filters: Sequence[KalmanFilter], mu0: Sequence[float], rates: Sequence[float]
+        self,
+        filters: Sequence[KalmanFilter],
+        mu0: Sequence[float],
+        rates: Sequence[float],
+        entry: Mapping[tuple[int, int], np.ndarray] | None = None,
     ) -> None:
         if not len(filters) == len(mu0) == len(rates) or not filters:
             raise ValueError("an IMM needs one or more modes, each with mu0 and a rate")
+        modes = range(len(filters))
+        for i, j in entry or {}:
+            if i not in modes or j not in modes or i == j:
+                raise ValueError(f"entry ({i}, {j}): modes are 0..{len(filters) - 1}, i != j")
+        self.entry = dict(entry or {})
         self.filters = list(filters)
         self.mu = np.asarray(mu0, dtype=float) / float(np.sum(mu0))
         self.rates = [float(r) for r in rates]
@@ -70,6 +92,17 @@ class Imm:
     def P(self) -> np.ndarray:
         return mixture([f.x for f in self.filters], [f.P for f in self.filters], self.mu)[1]
 
+    def snapshot(self) -> tuple:
+        """A copy of the mode probabilities and each filter's x and P, for :meth:`restore`."""
+        return (self.mu.copy(), self._c.copy(), [(f.x.copy(), f.P.copy()) for f in self.filters])
+
+    def restore(self, snap: tuple) -> None:
+        """Back to a :meth:`snapshot` of this IMM."""
+        mu, c, states = snap
+        self.mu, self._c = mu.copy(), c.copy()
+        for f, (x, P) in zip(self.filters, states, strict=True):
+            f.reset(x, P)
+
     def mix(self, dt: float) -> None:
         """Step 1 over ``dt`` s: restart each filter from its mixed initial condition."""
         Pi = transition(self.rates, dt)
@@ -77,9 +110,13 @@ class Imm:
         c = np.maximum(c, 1e-300)
         xs = [f.x for f in self.filters]
         Ps = [f.P for f in self.filters]
+        entry = self.entry
         for j, f in enumerate(self.filters):
             w = Pi[:, j] * self.mu / c[j]
-            x0, P0 = mixture(xs, Ps, w)
+            Pj = Ps
+            if entry:
+                Pj = [P if (i, j) not in entry else P + entry[(i, j)] for i, P in enumerate(Ps)]
+            x0, P0 = mixture(xs, Pj, w)
             f.reset(x0, P0)
         self._c = c
 

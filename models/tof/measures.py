@@ -42,16 +42,17 @@ class _TofMeasure(FusionMeasure):
     def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
         self.forecasting = bool(self.prepare_args(args)["forecast"])
         super().init(args, ctx)
-        self._last_t = float("-inf")
+        self._forecast_t = float("-inf")  # the newest forecast's time (FusionMeasure's
+        # _last_t is the newest sample's: a forecast is later than every sample it follows)
 
     def measure(self) -> list[Reading] | Reading | None:
         out = super().measure()
         if not self.forecasting:
             return out
         est = self.model.forecast(time.time())
-        if est is None or est[0] <= self._last_t:
+        if est is None or est[0] <= self._forecast_t:
             return None
-        self._last_t = est[0]
+        self._forecast_t = est[0]
         return Reading(est[1], est[0])
 
 

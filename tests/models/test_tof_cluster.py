@@ -22,7 +22,7 @@ from harness import Cluster, cluster_env
 from hera.application import EvalOptions, Series
 from hera.evaluate import load_outputs, run_spec
 from hera.models.tof.app import desk_truth, score_height
-from hera.recordings import read_recordings
+from hera.recordings import read_recordings, read_start, start_marker
 
 ROOT = Path(__file__).resolve().parents[2]
 FILTER_NODES = ("pc", "tof_centre")
@@ -74,6 +74,19 @@ def test_three_sensor_height_within_the_targets_before_the_fault(tof_run):
         for seed in ("tof_cv", "tof_ca", "tof_fused"):
             assert res[(seed, node)][0]["rmse_mm"] > 1.5 * plane["rmse_mm"], (node, seed)
         assert not np.any(series.column("faulty [mask]")[series.t < fault_t]), node
+
+
+def test_the_forecasting_filters_take_the_readings_in_time_order(tof_run):
+    """The readings arrive in time order (33 ms apart, a few ms in transit), so the start
+    markers count next to none given late; a forecast's own time, later than every reading,
+    once counted every reading after it as late (992 of 1000) and made ``hera replay
+    --start-like`` call the live filters' inputs out of order."""
+    run, _ = tof_run
+    readings = len(read_recordings(run, ["vl53l1"]))
+    for node in FILTER_NODES:
+        for model in ("tof_cv", "tof_ca", "tof_fused", "tof_plane"):
+            marker = read_start(start_marker(run / "measures", model, node))
+            assert marker.late is not None and marker.late <= 0.01 * readings, (model, node)
 
 
 def test_the_stuck_sensor_is_reported_within_1_s_and_the_height_holds(tof_run):
