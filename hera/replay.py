@@ -150,6 +150,14 @@ def why_not_exact(name: str, node: str, live: LiveStart) -> str | None:
     )
 
 
+def _inputs_of(models: Mapping[str, tuple[str, Mapping[str, Any]]]) -> dict[str, tuple[str, ...]]:
+    """The input names of each of ``models`` (name -> (measure use, model params))."""
+    return {
+        name: tuple(find_measure(use).make_model(params, name).inputs)
+        for name, (use, params) in models.items()
+    }
+
+
 def why_inputs_not_exact(
     recordings: str | Path, models: Mapping[str, tuple[str, Mapping[str, Any]]]
 ) -> dict[str, str]:
@@ -160,10 +168,7 @@ def why_inputs_not_exact(
     replay may differ from its live estimates although its own start marker is clean."""
     from hera.recordings import measures_dir, read_start
 
-    inputs_of = {
-        name: [i for i in find_measure(use).make_model(params, name).inputs if i in models]
-        for name, (use, params) in models.items()
-    }
+    inputs_of = {name: [i for i in ins if i in models] for name, ins in _inputs_of(models).items()}
     wanted = {i for ins in inputs_of.values() for i in ins}
     replicas: dict[str, list[tuple[str, LiveStart]]] = {}
     for path in sorted(measures_dir(recordings).glob("*.start.json")):
@@ -195,10 +200,7 @@ def why_recordings_incomplete(
     fused them live, and the replay then differs from there."""
     from hera.recordings import measures_dir, read_csv
 
-    inputs_of = {
-        name: set(find_measure(use).make_model(params, name).inputs)
-        for name, (use, params) in models.items()
-    }
+    inputs_of = {name: set(ins) for name, ins in _inputs_of(models).items()}
 
     def recorded(name: str, seen: frozenset = frozenset()) -> set[str]:
         out = {i for i in inputs_of[name] if i not in models}
