@@ -10,7 +10,9 @@ A campaign directory holds:
 - ``observed/``: the bus as the campaign saw it (:mod:`hera.campaign.recorder`);
 - ``audit/fire-<node>-<measure>.log``: the real trigger times of every firing of a
   measure that audits them (a measure declaring a ``fire_log`` argument, e.g. the simulated
-  sonar): ``start end node epoch token deadline`` on the sync clock;
+  sonar): ``start end node epoch token deadline`` on the sync clock, read onto the wall
+  clock through ``clock.csv`` (both clocks sampled together, :mod:`hera.campaign.clockmap`)
+  and the journal's pairs;
 - ``run/``: the cluster's own run directory (``hera up``: logs, CSVs, persisted state);
 - ``final.json``: every node's args and status just before the stop; ``leftovers.json``:
   processes of the run still alive after it stopped; ``launcher.out``: ``hera up``'s output.
@@ -23,7 +25,7 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -31,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from hera.campaign import journal
+from hera.campaign import clockmap, journal
 from hera.campaign.plan import Planned
 from hera.campaign.recorder import FOLDER as OBSERVED
 from hera.spec import ClusterSpec, load_spec
@@ -175,6 +177,8 @@ class History:
     final: dict[str, Any]
     persisted: dict[str, dict[str, Any]]
     leftovers: list[dict[str, Any]]
+    pauses: list[tuple[float, float, float]] = field(default_factory=list)
+    """(wall from, wall to, seconds) the machine stood still (:func:`clockmap.pauses`)."""
 
     @property
     def run_dir(self) -> Path:
@@ -184,11 +188,13 @@ class History:
         return self.meta.get("times", {}).get(key)
 
     def windows(self, after: float = 0.0) -> list[tuple[float, float]]:
-        """The time each fault acted, plus ``after`` s (its aftermath), merged."""
+        """The time each fault acted, and each pause of the machine, plus ``after`` s (its
+        aftermath), merged."""
         spans = sorted(
             (f.start, (f.until or f.start) + after) for f in self.faults if f.start is not None
         )
         spans += sorted((m["t"], m["t"] + after + m.get("duration", 0.0)) for m in self.manual)
+        spans += [(lo, hi + after) for lo, hi, _ in self.pauses]  # the machine stood still
         spans.sort()
         out: list[tuple[float, float]] = []
         for lo, hi in spans:
@@ -319,13 +325,18 @@ def read_logs(run_dir: Path) -> list[LogEvent]:
     return out
 
 
-def parse_fire_line(line: str, measure: str, group: str, offset: float) -> Firing | None:
-    """One fire-log line (sync clock) as a :class:`Firing` on the wall clock."""
+def parse_fire_line(
+    line: str, measure: str, group: str, to_wall: Callable[[float], float]
+) -> Firing | None:
+    """One fire-log line (sync clock) as a :class:`Firing` on the wall clock (``to_wall``:
+    :func:`hera.campaign.clockmap.sync_to_wall`)."""
     parts = line.split()
     if len(parts) not in (3, 6):
         return None
     try:
-        start, end = float(parts[0]) + offset, float(parts[1]) + offset
+        start, end = float(parts[0]), float(parts[1])
+        offset = to_wall(start) - start  # one offset per firing: its length is kept
+        start, end = start + offset, end + offset
         if len(parts) == 6 and parts[3] != "-":
             epoch, token = int(parts[3]), int(parts[4])
             deadline = float(parts[5]) + offset
@@ -336,15 +347,18 @@ def parse_fire_line(line: str, measure: str, group: str, offset: float) -> Firin
     return Firing(start, end, parts[2], measure, group, epoch, token, deadline)
 
 
-def read_firings(folder: Path, fire_logs: dict[str, dict[str, str]], offset: float) -> list[Firing]:
-    """Every firing of the audit logs (``fire_logs``: file name -> node, measure, group)."""
+def read_firings(
+    folder: Path, fire_logs: dict[str, dict[str, str]], to_wall: Callable[[float], float]
+) -> list[Firing]:
+    """Every firing of the audit logs (``fire_logs``: file name -> node, measure, group), on
+    the wall clock through ``to_wall``."""
     out = []
     for fname, info in fire_logs.items():
         path = Path(folder) / AUDIT / fname
         if not path.exists():
             continue
         for line in path.read_text().splitlines():
-            f = parse_fire_line(line, info["measure"], info["group"], offset)
+            f = parse_fire_line(line, info["measure"], info["group"], to_wall)
             if f is not None:
                 out.append(f)
     out.sort(key=lambda f: f.start)
@@ -399,7 +413,9 @@ def load(folder: str | Path) -> History:
     plan = [Planned.from_dict(d) for d in _json(folder / PLAN, [])]
     events = journal.read(folder)
     manual = [e for e in events if e.get("index") == -1 and e["event"] == "start"]
-    offset = float(meta.get("clock_offset", 0.0))
+    anchors = clockmap.read_anchors(folder)
+    pairs = anchors + [(e["t"], e["clock"]) for e in events if "t" in e and "clock" in e]
+    to_wall = clockmap.sync_to_wall(pairs, float(meta.get("clock_offset", 0.0)))
     return History(
         folder=folder,
         meta=meta,
@@ -410,9 +426,10 @@ def load(folder: str | Path) -> History:
         streams=read_streams(folder),
         alive=read_alive(folder),
         log=read_logs(folder / RUN),
-        firings=read_firings(folder, meta.get("fire_logs", {}), offset),
+        firings=read_firings(folder, meta.get("fire_logs", {}), to_wall),
         args_seen=read_args_seen(folder),
         final=_json(folder / FINAL, {}),
         persisted=read_persisted(meta.get("state_dir") or folder / RUN / "state"),
         leftovers=_json(folder / LEFTOVERS, []),
+        pauses=clockmap.pauses(anchors),
     )

@@ -117,6 +117,13 @@ def blocks(h: History, verdicts: list[Verdict], command: str) -> list[Block]:
         facts.append(f"ran {stopped - started:.0f} s from {when}")
     if meta.get("interrupted"):
         facts.append("**interrupted** before the end of its schedule")
+    for lo, _, stood in h.pauses:
+        clock = time.strftime("%H:%M:%S", time.localtime(lo))
+        at = f"{lo - started:.0f} s in" if started else f"at {clock}"
+        facts.append(
+            f"the machine stood still for {stood:.1f} s, {at} (its clocks stopped: a paused "
+            "virtual machine); nothing is judged there"
+        )
     out.append(("ul", facts))
     out.append(("h2", "Verdict"))
     out.append(

@@ -38,7 +38,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import IO, Any
 
-from hera.campaign import history, journal, netns
+from hera.campaign import clockmap, history, journal, netns
 from hera.campaign.actuators import Injector
 from hera.campaign.links import PLAN_FILE, ProxyProcess, node_env, plan_links, write_plan
 from hera.campaign.plan import Planned, make_plan
@@ -351,6 +351,7 @@ class CampaignRun:
 
         wall, clock = journal.now()
         self.clock_offset = wall - clock
+        anchors = clockmap.AnchorWriter(self.folder).start()  # the clocks, sampled together
         handlers = {}
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGINT, signal.SIGTERM):
@@ -381,6 +382,7 @@ class CampaignRun:
             self.say(f"the run broke: {self.error}")
         finally:
             self._stop()
+            anchors.stop()
             for sig, h in handlers.items():
                 signal.signal(sig, h)
         self.say("checking the run")

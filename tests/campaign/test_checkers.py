@@ -7,6 +7,7 @@ them is shown failing here on the kind of history it exists to catch.
 
 from __future__ import annotations
 
+import json
 import math
 import subprocess
 import sys
@@ -15,7 +16,7 @@ import time
 import pytest
 from campaign_synth import T0, Synth, steady
 
-from hera.campaign import analysis, checkers
+from hera.campaign import analysis, checkers, clockmap, history, report
 from hera.models.train.app import train_truth
 
 CAMPAIGN = {
@@ -403,3 +404,87 @@ def test_a_fault_that_touches_only_bursty_streams_is_judged_by_their_return(tmp_
     assert ok["recovery"].passed, ok["recovery"].summary
     bad = verdicts(clean(tmp_path / "bad", model_times=bursts(False), then=[pause_c]))
     assert not bad["recovery"].passed and "track_gyro@c" in bad["recovery"].summary
+
+
+PAUSE_AT, PAUSED = 50.0, 18.0
+
+
+def _machine_paused(s: Synth) -> None:
+    """Rewrite ``s`` as if the machine stood still for PAUSED s from PAUSE_AT (a paused
+    virtual machine): nothing recorded then; the sync clock (fire logs, the journal's
+    ``clock``) PAUSED s behind the wall clock after it; ``clock.csv`` samples both clocks."""
+    lo, hi = T0 + PAUSE_AT, T0 + PAUSE_AT + PAUSED
+    for path in (s.dir / "audit").glob("*.log"):
+        out = []
+        for line in path.read_text().splitlines():
+            p = line.split()
+            if lo <= float(p[0]) < hi:
+                continue
+            if float(p[0]) >= hi:
+                for i in (0, 1, 5):
+                    p[i] = f"{float(p[i]) - PAUSED:.6f}"
+            out.append(" ".join(p))
+        path.write_text("\n".join(out) + "\n")
+    for path in (s.dir / "observed").glob("*.csv"):
+        rows = path.read_text().splitlines()
+        path.write_text("\n".join(r for r in rows if not lo <= float(r.split(",")[0]) < hi))
+    journal = s.dir / "faults.jsonl"
+    events = [json.loads(line) for line in journal.read_text().splitlines()]
+    for e in events:
+        e["clock"] = e["t"] - (PAUSED if e["t"] >= hi else 0.0)
+    journal.write_text("".join(json.dumps(e) + "\n" for e in events))
+    with open(s.dir / clockmap.ANCHORS, "w") as f:
+        for w in steady(0.0, 120.0, 0.25):
+            if not lo < T0 + w < hi:
+                f.write(f"{T0 + w!r},{T0 + w - (PAUSED if T0 + w >= hi else 0.0)!r}\n")
+
+
+def test_a_paused_machine_is_no_fault_and_moves_no_firing(tmp_path, monkeypatch):
+    """A VM paused 18 s mid-run (the clocks of its processes stop, its wall clock is set
+    forward on resume; measured in a slow-test campaign): the firings after it are read onto
+    the wall clock through the clocks sampled together, so the partition 12 s after it is
+    judged where it was, and the 18 s of silence is no gap. With one offset from the start,
+    the minority 'fired through the cut' (and in the slow test, whose run ended 12 s after
+    its last fault, the sonars 'never flowed again')."""
+    camp = {
+        **CAMPAIGN,
+        "faults": [
+            {"kind": "partition", "groups": [["a"], ["others"]], "duration_s": 4, "name": "cut a"}
+        ],
+    }
+    cut = PAUSE_AT + PAUSED + 12.0
+
+    def minority(node, spans, grants):
+        keep = [(sp, g) for sp, g in zip(spans, grants, strict=True)]
+        keep = [k for k in keep if not (node == "a" and cut + 0.3 < k[0][0] < cut + 4.0)]
+        return [k[0] for k in keep], [k[1] for k in keep]
+
+    def run(folder):
+        s = clean(folder, camp, firings=minority, faults=False)
+        s.fault(
+            "partition", cut, 4.0, nodes=["a", "b", "c"], pairs=[["a", "b"], ["a", "c"]],
+            groups=[["a"], ["b", "c"]], name="cut a",
+        )  # fmt: skip
+        for obs in ("b", "c"):  # the cut noticed, and its healing
+            s.log(obs, cut + 1.5, "hera.peers", "peer a down")
+            s.log(obs, cut + 4.2, "hera.peers", "peer a up")
+        s.load()  # writes the metadata
+        _machine_paused(s)
+        return s
+
+    s = run(tmp_path / "paused")
+    h = history.load(s.dir)
+    assert [(round(a - T0, 2), round(b - T0, 2), round(x, 1)) for a, b, x in h.pauses] == [
+        (50.0, 68.0, 18.0)
+    ]
+    v = {x.name: x for x in checkers.run_all(h)}
+    failed = {k: x.summary for k, x in v.items() if not x.passed}
+    assert not failed
+    said = report.markdown(report.blocks(h, [*v.values()], "hera campaign"))
+    assert "the machine stood still for 18.0 s, 50 s in" in said
+
+    # the reading before: one offset for the whole run
+    monkeypatch.setattr(clockmap, "sync_to_wall", lambda pairs, off: lambda c: c + off)
+    v = {x.name: x for x in checkers.run_all(history.load(run(tmp_path / "before").dir))}
+    assert not v["sync_partitions"].passed
+    assert "a (minority) fired 3.980 s into a cut" in v["sync_partitions"].summary
