@@ -455,8 +455,8 @@ def test_a_paused_machine_is_no_fault_and_moves_no_firing(tmp_path, monkeypatch)
     cut = PAUSE_AT + PAUSED + 12.0
 
     def minority(node, spans, grants):
-        keep = [(sp, g) for sp, g in zip(spans, grants, strict=True)]
-        keep = [k for k in keep if not (node == "a" and cut + 0.3 < k[0][0] < cut + 4.0)]
+        pairs = zip(spans, grants, strict=True)
+        keep = [k for k in pairs if not (node == "a" and cut + 0.3 < k[0][0] < cut + 4.0)]
         return [k[0] for k in keep], [k[1] for k in keep]
 
     def run(folder):
