@@ -29,6 +29,7 @@ from .health import HealthMonitor, NisStats
 from .history import StepHistory, batch_filter, record
 from .kalman import KalmanFilter
 from .means import circular_mean, make_mean, make_residual, quaternion_mean
+from .mixtures import bhattacharyya, mixture
 from .numerics import (
     CovarianceError,
     NonFiniteInputError,
@@ -80,6 +81,7 @@ __all__ = [
     "as_covariance",
     "assert_positive_definite",
     "batch_filter",
+    "bhattacharyya",
     "circular_mean",
     "chi2_cdf",
     "chi2_ppf",
@@ -90,6 +92,7 @@ __all__ = [
     "make_mean",
     "make_residual",
     "matrix_to_quat",
+    "mixture",
     "nearest_branch",
     "numerical_jacobian",
     "quat_conjugate",

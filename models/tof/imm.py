@@ -38,7 +38,7 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
-from hera.estimation import KalmanFilter, Observations, gate_threshold
+from hera.estimation import KalmanFilter, Observations, gate_threshold, mixture
 
 
 def transition(rates: Sequence[float], dt: float) -> np.ndarray:
@@ -51,13 +51,6 @@ def transition(rates: Sequence[float], dt: float) -> np.ndarray:
         Pi[i, :] = leave / max(1, m - 1)
         Pi[i, i] = 1.0 - leave
     return Pi
-
-
-def mixture(xs: Sequence[np.ndarray], Ps: Sequence[np.ndarray], w: np.ndarray):
-    """(mean, covariance) of the Gaussian mixture sum w_j N(xs_j, Ps_j)."""
-    x = sum(wj * xj for wj, xj in zip(w, xs, strict=True))
-    P = sum(wj * (Pj + np.outer(xj - x, xj - x)) for wj, xj, Pj in zip(w, xs, Ps, strict=True))
-    return x, 0.5 * (P + P.T)
 
 
 class Imm:

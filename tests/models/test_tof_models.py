@@ -337,8 +337,8 @@ def test_numpy_and_numba_give_the_same_heights():
 def test_imm_mixing_gives_a_mode_its_prior_for_states_another_lacks():
     """Granstrom, Willett & Bar-Shalom 2015: mode 0's component mixed into mode 1 carries
     entry[(0, 1)] on top of P_0; mode 0's own mixing and the means are unchanged."""
-    from hera.estimation import KalmanFilter
-    from hera.models.tof.imm import Imm, mixture, transition
+    from hera.estimation import KalmanFilter, mixture
+    from hera.models.tof.imm import Imm, transition
 
     F, Q = np.eye(2), np.zeros((2, 2))
     xs = [np.array([0.0, 1.0]), np.array([0.5, 1.2])]
