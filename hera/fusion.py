@@ -431,7 +431,12 @@ class FusionMeasure(Measure):
             checkpoints.save(self.ctx.state_dir, self.ctx.spec.name, entry)
         except Exception as e:  # cannot be pickled, or the disk refused: in memory only
             self._disk = False
-            self.ctx.log.warning("no checkpoints of the model on disk: %s", e)
+            self.ctx.log.warning(
+                "no checkpoints of the model on disk (a node process that restarts starts"
+                " it afresh): it cannot be pickled: %s (a lambda or a local function in"
+                " the model? a module-level function or a method pickles)",
+                e,
+            )
 
     def _release(self, arrived: list[Sample]) -> list[Sample]:
         """Hold samples up to ``reorder_s``; return those due, in measurement-time order.

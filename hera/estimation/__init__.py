@@ -54,6 +54,7 @@ from .orientation import (
 )
 from .results import BlockOutcome, UpdateDetails, UpdateResult
 from .smoother import Smoothed, rts_smoother, smooth
+from .state import NoiseRate
 from .ukf import MerweSigmaPoints, UnscentedKalmanFilter
 
 __all__ = [
@@ -69,6 +70,7 @@ __all__ = [
     "KalmanFilter",
     "MerweSigmaPoints",
     "NisStats",
+    "NoiseRate",
     "NonFiniteInputError",
     "Observations",
     "Smoothed",

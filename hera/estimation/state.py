@@ -57,6 +57,29 @@ def process_noise(Q: Any, n: int, what: str) -> np.ndarray:
     return as_covariance(Q, n, what, semidefinite=True)
 
 
+class NoiseRate:
+    """Process noise that grows linearly with the step: ``Q(dt) = Qc dt``, Qc the noise's
+    rate (its continuous-time spectral density; units of the state squared per second), as
+    a scalar (Qc I), a vector (its diagonal) or a matrix. Give it as a filter's ``Q``; unlike
+    a lambda it can be pickled, so the filter can be (a model's checkpoint on disk)."""
+
+    __slots__ = ("rate",)
+
+    def __init__(self, rate: Any) -> None:
+        r = np.asarray(rate, dtype=np.float64)
+        if r.ndim > 2 or not np.isfinite(r).all() or (r.ndim < 2 and (r < 0).any()):
+            raise ValueError(
+                f"NoiseRate: the rate must be variances >= 0 or a matrix, got {rate!r}"
+            )
+        self.rate: Any = float(r) if r.ndim == 0 else np.diag(r) if r.ndim == 1 else r
+
+    def __call__(self, dt: float) -> np.ndarray:
+        return self.rate * dt
+
+    def __repr__(self) -> str:
+        return f"NoiseRate({np.asarray(self.rate).tolist()!r})"
+
+
 class FilterState:
     """(x, P) with checked assignment, ``x_prior``/``P_prior`` (after the last predict),
     ``x_post``/``P_post`` (after the last update or reset; both start at x0, P0) and

@@ -47,6 +47,7 @@ import numpy as np
 
 from hera.estimation import (
     ExtendedKalmanFilter,
+    NoiseRate,
     Observations,
     bhattacharyya,
     gate_threshold,
@@ -64,6 +65,15 @@ PRUNE = 1e-4
 """A start hypothesis whose weight falls under this is dropped."""
 MERGE = 1e-3
 """Two start hypotheses this close (Bhattacharyya distance) are merged into one."""
+
+
+def _cv(x: np.ndarray, dt: float, u: Any = None) -> np.ndarray:
+    """The constant-velocity model: [d + dt v, v]."""
+    return np.array([x[0] + dt * x[1], x[1]])
+
+
+def _cv_jacobian(x: np.ndarray, dt: float, u: Any = None) -> np.ndarray:
+    return np.array([[1.0, dt], [0.0, 1.0]])
 
 
 class _Hypothesis:
@@ -167,18 +177,10 @@ class IrTracker:
         priors = [self.p0]
         if self.v0_still > 0:
             priors.append(np.diag([self.p0[0, 0], self.v0_still]))
-        q = self.q
         log_w = -math.log(len(priors))
         self.hypotheses = [
             _Hypothesis(
-                ExtendedKalmanFilter(
-                    [d0, v0],
-                    p,
-                    lambda x, dt, u: np.array([x[0] + dt * x[1], x[1]]),
-                    lambda dt: np.diag(q * dt),
-                    lambda x, dt, u: np.array([[1.0, dt], [0.0, 1.0]]),
-                ),
-                log_w,
+                ExtendedKalmanFilter([d0, v0], p, _cv, NoiseRate(self.q), _cv_jacobian), log_w
             )
             for p in priors
         ]

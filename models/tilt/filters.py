@@ -25,6 +25,7 @@ import numpy as np
 
 from hera.estimation import (
     ExtendedKalmanFilter,
+    NoiseRate,
     Observations,
     UnscentedKalmanFilter,
     gate_threshold,
@@ -121,16 +122,16 @@ class LibraryFilter:
         q = list(q)
         if kind == "bias":
             f, F = (f4, F4) if len(x0) == 4 else (f3, F3)
-            self.f = ExtendedKalmanFilter(x0, P0, f, lambda dt: np.diag(q) * dt, F)
+            self.f = ExtendedKalmanFilter(x0, P0, f, NoiseRate(q), F)
         elif kind == "ekf":
-            self.f = ExtendedKalmanFilter(x0, P0, f2, lambda dt: np.diag(q) * dt, F2)
+            self.f = ExtendedKalmanFilter(x0, P0, f2, NoiseRate(q), F2)
         elif kind == "ukf":
             alpha, beta, kappa = ukf
             self.f = UnscentedKalmanFilter(
                 x0,
                 P0,
                 f2_batch,
-                lambda dt: np.diag(q) * dt,
+                NoiseRate(q),
                 alpha=alpha,
                 beta=beta,
                 kappa=3.0 - len(x0) if kappa is None else kappa,

@@ -15,6 +15,8 @@ alone.
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pytest
 from ir_offline import EPOCH, Clock, ir_source, rms, run, tc_sources
@@ -214,6 +216,27 @@ def test_the_start_hypotheses_merge_into_one_filter():
     single = IrTracker(x0=[50.0, 0.0], v0_still=0)
     track({"scenario": "ir_stationary", "distance_cm": 70.0}, 0, {"e": single}, 2.0)
     assert len(single.hypotheses) == 1 and single.counters()["merged"] == 0
+
+
+def test_the_tracker_pickles_for_its_checkpoint_and_goes_on_the_same():
+    """A fusion measure's checkpoint on disk is the model pickled (``hera.checkpoints``):
+    a copy taken while both start hypotheses run, and one taken after they merged, go on
+    exactly as the original."""
+    seen: list[Sample] = []
+    recorder = IrTracker(x0=[50.0, 0.0])
+    process = recorder.process
+    recorder.process = lambda s: seen.append(s) or process(s)  # type: ignore[method-assign]
+    track({"scenario": "ir_stationary", "distance_cm": 70.0}, 2, {"e": recorder}, 6.0)
+    for cut in (20, len(seen) // 2):
+        model = IrTracker(x0=[50.0, 0.0])
+        for sample in seen[:cut]:
+            model.process(sample)
+        assert len(model.hypotheses) == (2 if cut == 20 else 1)
+        copy = pickle.loads(pickle.dumps(model))
+        for sample in seen[cut:]:
+            model.process(sample)
+            copy.process(sample)
+            assert copy.estimate() == model.estimate()
 
 
 TRIO = (*PAIR, ("ir_short", SHORT))

@@ -5,6 +5,7 @@ a fake clock driving the very model objects the measures run), with a gyro-bias 
 from __future__ import annotations
 
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -55,6 +56,22 @@ def test_the_split_filter_computes_what_the_full_ekf_does(run0):
     assert len(split) == len(ekf) == len(ukf) > 900
     assert np.max(np.abs(split.values - ekf.values)) < 1e-9
     assert np.max(np.abs(np.degrees(ukf.column("theta [rad]") - ekf.column("theta [rad]")))) < 0.05
+
+
+@pytest.mark.parametrize("kind", ["split", "ekf", "ukf", "bias"])
+def test_a_filter_pickles_for_its_checkpoint_and_goes_on_the_same(run0, kind):
+    """A fusion measure's checkpoint on disk is the model pickled (``hera.checkpoints``):
+    a copy taken mid-run goes on exactly as the original (no lambda in a filter)."""
+    stream, _ = run0
+    model = Tilt2D(kind=kind)
+    half = len(stream) // 2
+    for _, sample in stream[:half]:
+        model.process(sample)
+    copy = pickle.loads(pickle.dumps(model))
+    rest = stream[half : half + 200]
+    assert (
+        run_model(copy, rest, None).values.tolist() == run_model(model, rest, None).values.tolist()
+    )
 
 
 def test_estimation_starts_once_calibrated_from_the_accelerometer(run0):

@@ -146,6 +146,13 @@ def test_an_out_of_tree_application_runs_scores_and_replays(installed, tmp_path)
         assert r["application"] == "thermo", r
         assert r["estimates"] > 40, f"{r}\n{said}"  # 8 s at 10 Hz from when all were up
         assert r["rmse_degc"] < 0.25  # sensor noise 0.3 degC: the filter does better
+    # the README's model pickles (F and Q are methods): each node checkpoints it on disk
+    logs = "".join(log.read_text() for log in (run / "logs").glob("*.log"))
+    assert "no checkpoints" not in logs, said
+    assert {c.parts[-3] for c in run.glob("state/*/checkpoints/thermo_filter.pickle")} == {
+        "sensor",
+        "desk",
+    }
     # plots are the application's too; this install has no matplotlib, and says so
     assert "plots skipped: plots need matplotlib: pip install 'hera-fusion[plot]'" in ev.stderr
     rp = _run(installed, "hera", "replay", str(run), "--out", str(tmp_path / "again"), cwd=tmp_path)

@@ -44,13 +44,16 @@ class ThermoModel:
     columns = ("temperature [degC]", "rate [degC/s]")
 
     def __init__(self, noise: float = 0.3, jerk: float = 0.01):
-        self.noise, self.t, self.rejected = noise, None, 0
-        self.kf = KalmanFilter(
-            [20.0, 0.0],
-            np.diag([100.0, 1.0]),
-            lambda dt: np.array([[1.0, dt], [0.0, 1.0]]),
-            lambda dt: jerk * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]]),
-        )
+        self.noise, self.jerk, self.t, self.rejected = noise, jerk, None, 0
+        # F(dt) and Q(dt) as methods, not lambdas: the model's checkpoint pickles it
+        self.kf = KalmanFilter([20.0, 0.0], np.diag([100.0, 1.0]), self.F, self.Q)
+
+    @staticmethod
+    def F(dt):
+        return np.array([[1.0, dt], [0.0, 1.0]])
+
+    def Q(self, dt):
+        return self.jerk * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
 
     def process(self, sample):
         if self.t is not None and sample.t > self.t:
