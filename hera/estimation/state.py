@@ -73,7 +73,8 @@ class NoiseRate:
             )
         self.rate: Any = float(r) if r.ndim == 0 else np.diag(r) if r.ndim == 1 else r
 
-    def __call__(self, dt: float) -> np.ndarray:
+    def __call__(self, dt: float) -> float | np.ndarray:
+        """Q(dt): the rate times dt (a number when the rate is one, else a matrix)."""
         return self.rate * dt
 
     def __repr__(self) -> str:
