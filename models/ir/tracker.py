@@ -21,7 +21,8 @@ counted as late and skipped. When half of the last ``lost_window`` samples were 
 the filter is lost and re-acquires: P gets ``p0`` added, so the next readings pull it
 back instead of being gated out for ever. Counters (``counters()``): per sensor
 ``<name>_used``, ``<name>_gated`` (rejected by the gate: the short sensor's second spike,
-heavy tails) and ``<name>_out_of_range``; ``late``, ``saturated``, ``reacquired``.
+heavy tails) and ``<name>_out_of_range``; ``late``, ``saturated``, ``reacquired``,
+``merged`` (the start hypotheses became one, below).
 
 The start's velocity is not known: the block may be at rest or already moving. A single
 Gaussian prior must pick one spread, and both picks fail a case: a wide one (5 cm/s) lets
