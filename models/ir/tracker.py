@@ -281,8 +281,8 @@ class IrTracker:
         if len(hyps) == 2:
             a, b = hyps[0].ekf, hyps[1].ekf
             if bhattacharyya(a.x, a.P, b.x, b.P) < MERGE:
-                w = [math.exp(h.log_w) for h in hyps]
-                x, P = mixture([a.x, b.x], [a.P, b.P], [v / sum(w) for v in w])
+                w = [math.exp(h.log_w) for h in hyps]  # normalised above
+                x, P = mixture([a.x, b.x], [a.P, b.P], w)
                 a.reset(x, P)
                 hyps = [_Hypothesis(a, 0.0)]
                 self._counts["merged"] += 1
@@ -320,7 +320,8 @@ class IrTracker:
         if len(hyps) == 1:
             x, P = hyps[0].ekf.x, hyps[0].ekf.P
         else:
-            w = np.exp([h.log_w for h in hyps])
+            log_w = np.array([h.log_w for h in hyps])  # unnormalised after an out-of-range
+            w = np.exp(log_w - log_w.max())  # reading: no overflow
             x, P = mixture([h.ekf.x for h in hyps], [h.ekf.P for h in hyps], w / w.sum())
         return self.t, [float(x[0]), float(x[1]), math.sqrt(max(P[0, 0], 0.0)), float(self.gated)]
 
