@@ -151,6 +151,7 @@ def _ours(d: Dataset) -> tuple[Step, Callable[[], np.ndarray]]:
         kw = {
             "gyro_noise": tuple(sd * math.sqrt(dt) for sd in d.noise["gyro_sd"]),
             "gyro_scale": 0.0,  # the data has no scale error
+            "acc_block": 0.0,  # nor linear acceleration: no block means (README)
             "acc_noise": d.noise["acc_sd"],
             "mag_noise": d.noise["mag_rel"],
             "gravity": d.noise["gravity"],

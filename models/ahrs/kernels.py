@@ -20,8 +20,15 @@ needs to decide into ``out``.
   I)`` (``q_att`` one variance per gyroscope axis). A scale error is thus seen only while
   the body turns about that axis, as the heading or tilt it accumulates, which the
   magnetometer and accelerometer then observe;
-- :func:`vector_update`: a reference vector seen in the body, ``z = s R(q)^T r + v``
-  (``s`` its length, e.g. g for the accelerometer): ``H = [s [v x], 0]`` with ``v =
+- the accelerometer is fused by two paths, two models of the linear acceleration, one
+  right where the other is wrong, which share its information so that together they claim
+  no more than the data hold: the block means take the share ``w = tr(Cb) / (tr(Cb) + 3
+  r_var)`` of it (``Cb`` the per-sample path's added covariance below: the part of the
+  per-sample noise that is motion; 0 when ``par[8]`` is 0, at most 0.99), each sample the
+  rest, their noise divided by ``w`` and ``1 - w``. With no motion measured the filter is
+  the per-sample one; under a shake that dwarfs the sensor's noise the block means carry it:
+- :func:`vector_update`, every sample: a reference vector seen in the body, ``z = s R(q)^T
+  r + v`` (``s`` its length, g for the accelerometer): ``H = [s [v x], 0]`` with ``v =
   R^T r``; its noise ``r_var I + R^T C R``, where ``C`` is the covariance of ``R z`` in
   the reference frame, averaged exponentially (weight ``alpha`` per sample, West 1979's
   update): what moves ``z`` there beyond the noise is not the reference vector (for the
@@ -32,7 +39,27 @@ needs to decide into ``out``.
   a filter that took each of its samples as independent would follow it. ``kappa = pi
   sqrt(var / var_step)`` (``var`` and ``var_step`` the exponential variances of the vector
   and of its steps from one sample to the next), the sample rate over twice the motion's
-  frequency for a sinusoid, clipped to [1, ``par[5]``];
+  frequency for a sinusoid, clipped to [1, ``par[5]``]. Right for slow or irregular
+  motion; for a periodic one it counts the motion's power, most of which the filter's
+  slow tilt never sees, and stays 10-20 times too wary;
+- :func:`block_update`, once per block of ``T`` s: what tells the tilt is the linear
+  acceleration's content at the low frequencies the filter runs at. Each sample is turned
+  into the reference frame with the current estimate (there gravity does not move while
+  the body turns) and summed; every ``T`` s the triangular mean of the last two blocks (a
+  Bartlett window of ``2 T`` s: its side lobes fall as ``1 / f^2``, so a shake above ``1 /
+  T`` Hz leaves little in it) is turned back into the body and fused like a sample. Its
+  noise is ``R^T D R`` plus the sensor's own noise over the block, ``D`` the covariance of
+  the differences of successive means (Allan 1966's two-sample variance, doubled: the
+  variance of a mean, times ``1 + 2 rho`` for the 1/4 correlation of overlapping Bartlett
+  windows, is ``E[d d^T]``), averaged exponentially over ``tau`` s (the first ones counted
+  equally), started from the alignment's spread: it measures, without the filter's own
+  gain, what moves the mean beyond gravity. The means are kept in the frame of the
+  estimate that made them: an update turns the stored mean and half-block with it, so the
+  filter's own corrections are not counted as motion. Right for a shake; slow to correct
+  and easily fooled by an acceleration slow enough to change little from one block to the
+  next, which it takes for a tilt and a gyroscope bias over several blocks; there the
+  per-sample path, whose many small updates follow such a motion and let go of it as soon
+  as it turns, holds the estimate;
 - :func:`mag_update`, in one of two modes. *Vector*: the field's direction, a unit vector,
   observed as ``R(q)^T m_ref`` like the accelerometer (``m_ref`` from the learnt dip angle
   and ``north``; noise ``r_rel^2`` per axis), so that the magnetometer helps the tilt too
@@ -66,14 +93,22 @@ import math
 
 import numpy as np
 
-ACC_PARAMS = 6
-"""``par`` of :func:`vector_update`: reference vector (3), its length s, the noise variance,
-the largest correlation factor."""
+ACC_PARAMS = 9
+"""``par`` of :func:`vector_update` and :func:`block_update`: reference vector (3), its
+length s, the sensor's noise variance per sample, the largest correlation factor, the
+block's length (s), the time (s) over which the covariance of the block means is averaged,
+and whether the block means are fused (1) or not (0)."""
 STATS = 17
 """``stats`` of :func:`vector_update`: the exponential mean (3) and covariance (3x3, rows) of
 the observed vector in the reference frame, the last such vector (3), the exponential
 mean of its squared step from one sample to the next (1), and whether there was a last
 one (1)."""
+BLOCK = 27
+"""``blk`` of :func:`block_update`: the time into the block (s); the block's sums of ``R(q)
+z dt`` (3) and of ``R(q) z dt u`` (3, ``u`` the fraction of the block gone), of ``dt`` and
+of ``dt u``; the previous block's rising sum (3) and its weight (0: none yet); the last
+mean (3) and whether there is one; the covariance ``D`` of the means (3x3, rows); the
+number of differences folded into ``D``."""
 MAG_PARAMS = 14
 """``par`` of :func:`mag_update`: up (3), north (3), r_rel, the field's expected norm (0: no
 window) and relative tolerance, its expected dip angle and tolerance (rad; widened by three
@@ -81,9 +116,10 @@ standard deviations of the filter's own tilt), the mode (1: the field's directio
 vector, 0: its heading only), and the step window of the heading innovation: its recent
 mean and the largest step from it (rad; inf: none)."""
 
-ACCEPTED, REJECTED, OUT_OF_WINDOW, UNUSABLE = 1.0, 0.0, -1.0, -2.0
+ACCEPTED, REJECTED, OUT_OF_WINDOW, UNUSABLE, PENDING = 1.0, 0.0, -1.0, -2.0, 2.0
 """Status written to ``out[1]`` of an update: fused, gated out by the chi-square test,
-outside the norm/dip window, or unusable (field along ``up``, a singular S)."""
+outside the norm/dip window, unusable (field along ``up``, a singular S), or folded into a
+block that is not over."""
 
 
 def rotvec_quat(v: np.ndarray) -> np.ndarray:
@@ -224,7 +260,9 @@ def vector_update(
 ) -> None:
     """Fuse ``z`` (body frame) seen as ``par[3] * R(q)^T par[0:3]``, if its NIS is at most
     ``gate``; first fold ``R(q) z`` into ``stats`` with weight ``alpha``. ``out``: NIS,
-    status, |innovation|^2, trace of the added covariance ``R^T C R``."""
+    status, |innovation|^2, trace of the added covariance ``R^T C R``, and the share ``w`` of
+    the information left to :func:`block_update` (this path's noise is divided by ``1 -
+    w``)."""
     s, r_var = par[3], par[4]
     Rq = quat_matrix(q)
     z = np.array((zx, zy, zz))
@@ -246,10 +284,76 @@ def vector_update(
     shrink = max(0.0, 1.0 - 3.0 * r_var / var) if var > 0.0 else 0.0
     Cb = (kappa * shrink) * (Rq.T @ C @ Rq)
     v = Rq.T @ par[0:3]
-    Rn = r_var * np.eye(3) + Cb
+    tr = float(np.trace(Cb))
+    share = min(par[8] * tr / (tr + 3.0 * r_var), 0.99)  # the block means' share
+    Rn = (r_var * np.eye(3) + Cb) / (1.0 - share)
+    out[4] = share
     out[2] = float(np.sum((z - s * v) ** 2))
-    out[3] = float(np.trace(Cb))
+    out[3] = tr
     _vector_core(q, g, P, z, v, s, Rn, gate, out)
+
+
+def block_update(
+    q: np.ndarray,
+    g: np.ndarray,
+    P: np.ndarray,
+    zx: float,
+    zy: float,
+    zz: float,
+    dt: float,
+    par: np.ndarray,
+    blk: np.ndarray,
+    share: float,
+    gate: float,
+    out: np.ndarray,
+) -> None:
+    """Fold the sample ``z`` (body frame), which covers the last ``dt`` s, into the block
+    sums ``blk`` (see :data:`BLOCK`) turned into the reference frame with the current ``q``;
+    at the end of a block of ``par[6]`` s, fuse the triangular mean of the last two blocks,
+    seen as ``par[3] * R(q)^T par[0:3]``, with the noise covariance the successive means'
+    differences give (averaged over ``par[7]`` s) divided by ``share`` (its share of the
+    information, from :func:`vector_update`; below 1e-3 the mean is not fused), if its NIS
+    is at most ``gate``. ``out``: NIS, status (``PENDING`` between block ends and when not
+    fused), |innovation|^2, the trace of the means' covariance ``D``."""
+    T = par[6]
+    R = quat_matrix(q)
+    zn = R @ np.array((zx, zy, zz))
+    blk[0] += dt
+    u = min(max(blk[0] / T, 0.0), 1.0)
+    blk[1:4] += zn * dt
+    blk[4:7] += zn * (dt * u)
+    blk[7] += dt
+    blk[8] += dt * u
+    out[0], out[1] = 0.0, PENDING
+    if blk[0] < T:
+        return
+    C = np.eye(3)  # the turn the update gives the reference frame
+    if blk[12] > 0.0:  # the rising half of the previous block is there (not at the start)
+        w_all = blk[12] + blk[7] - blk[8]
+        m = (blk[9:12] + blk[1:4] - blk[4:7]) / w_all
+        D = blk[17:26].reshape(3, 3)
+        if blk[16] > 0.0:
+            d = m - blk[13:16]
+            blk[26] += 1.0
+            w = max(min(1.0, T / par[7]), 1.0 / (blk[26] + 1.0))
+            D = (1.0 - w) * D + w * np.outer(d, d)
+            blk[17:26] = D.reshape(9)
+        blk[13:16] = m
+        blk[16] = 1.0
+        z = R.T @ m
+        v = R.T @ par[0:3]
+        out[2] = float(np.sum((z - par[3] * v) ** 2))
+        out[3] = float(np.trace(D))
+        if share >= 1e-3:
+            Rn = (R.T @ (D + (par[4] * dt / T) * np.eye(3)) @ R) / share
+            _vector_core(q, g, P, z, v, par[3], Rn, gate, out)
+        if out[1] == ACCEPTED:
+            C = quat_matrix(q) @ R.T
+            blk[13:16] = C @ m
+    blk[9:12] = C @ blk[4:7]
+    blk[12] = blk[8]
+    blk[1:9] = 0.0
+    blk[0] = blk[0] - T if blk[0] < 2.0 * T else 0.0
 
 
 def mag_update(

@@ -15,7 +15,7 @@ from types import SimpleNamespace
 import numba
 import numpy as np
 
-from hera.models.ahrs.kernels import ACCEPTED, OUT_OF_WINDOW, REJECTED, UNUSABLE
+from hera.models.ahrs.kernels import ACCEPTED, OUT_OF_WINDOW, PENDING, REJECTED, UNUSABLE
 
 _jit = numba.njit(cache=True, error_model="numpy")
 
@@ -282,6 +282,11 @@ def vector_update(q, g, P, zx, zy, zz, par, stats, alpha, gate, out):
         tr += Rn[i, i]
     for i in range(3):
         Rn[i, i] += r_var
+    share = min(par[8] * tr / (tr + 3.0 * r_var), 0.99)  # the block means' share
+    for i in range(3):
+        for j in range(3):
+            Rn[i, j] /= 1.0 - share
+    out[4] = share
     v = np.empty(3)
     for i in range(3):
         v[i] = R[0, i] * par[0] + R[1, i] * par[1] + R[2, i] * par[2]
@@ -292,6 +297,93 @@ def vector_update(q, g, P, zx, zy, zz, par, stats, alpha, gate, out):
     out[2] = nu2
     out[3] = tr
     _vector_core(q, g, P, z, v, s, Rn, gate, out)
+
+
+@_jit
+def block_update(q, g, P, zx, zy, zz, dt, par, blk, share, gate, out):
+    T = par[6]
+    R = np.empty((3, 3))
+    _qmat(q[0], q[1], q[2], q[3], R)
+    blk[0] += dt
+    u = min(max(blk[0] / T, 0.0), 1.0)
+    for i in range(3):
+        zn = R[i, 0] * zx + R[i, 1] * zy + R[i, 2] * zz
+        blk[1 + i] += zn * dt
+        blk[4 + i] += zn * (dt * u)
+    blk[7] += dt
+    blk[8] += dt * u
+    out[0], out[1] = 0.0, PENDING
+    if blk[0] < T:
+        return
+    C = np.eye(3)  # the turn the update gives the reference frame
+    if blk[12] > 0.0:  # the rising half of the previous block is there
+        w_all = blk[12] + blk[7] - blk[8]
+        m = np.empty(3)
+        for i in range(3):
+            m[i] = (blk[9 + i] + blk[1 + i] - blk[4 + i]) / w_all
+        if blk[16] > 0.0:
+            blk[26] += 1.0
+            w = max(min(1.0, T / par[7]), 1.0 / (blk[26] + 1.0))
+            for i in range(3):
+                di = m[i] - blk[13 + i]
+                for j in range(3):
+                    dj = m[j] - blk[13 + j]
+                    blk[17 + 3 * i + j] = (1.0 - w) * blk[17 + 3 * i + j] + w * di * dj
+        noise = par[4] * dt / T
+        tr = 0.0
+        for i in range(3):
+            blk[13 + i] = m[i]
+            tr += blk[17 + 4 * i]
+        blk[16] = 1.0
+        # Rn = R^T (D + noise I) R
+        DR = np.empty((3, 3))
+        for i in range(3):
+            for j in range(3):
+                acc = 0.0
+                for k in range(3):
+                    acc += blk[17 + 3 * i + k] * R[k, j]
+                DR[i, j] = acc
+        Rn = np.empty((3, 3))
+        for i in range(3):
+            for j in range(3):
+                acc = 0.0
+                for k in range(3):
+                    acc += R[k, i] * DR[k, j]
+                Rn[i, j] = acc
+            Rn[i, i] += noise
+        for i in range(3):
+            for j in range(3):
+                Rn[i, j] /= max(share, 1e-3)
+        z = np.empty(3)
+        v = np.empty(3)
+        s = par[3]
+        nu2 = 0.0
+        for i in range(3):
+            z[i] = R[0, i] * m[0] + R[1, i] * m[1] + R[2, i] * m[2]
+            v[i] = R[0, i] * par[0] + R[1, i] * par[1] + R[2, i] * par[2]
+            e = z[i] - s * v[i]
+            nu2 += e * e
+        out[2] = nu2
+        out[3] = tr
+        if share >= 1e-3:
+            _vector_core(q, g, P, z, v, s, Rn, gate, out)
+        if out[1] == ACCEPTED:
+            Rq = np.empty((3, 3))
+            _qmat(q[0], q[1], q[2], q[3], Rq)
+            for i in range(3):
+                for j in range(3):
+                    acc = 0.0
+                    for k in range(3):
+                        acc += Rq[i, k] * R[j, k]
+                    C[i, j] = acc
+            for i in range(3):
+                blk[13 + i] = C[i, 0] * m[0] + C[i, 1] * m[1] + C[i, 2] * m[2]
+    for i in range(3):
+        blk[9 + i] = C[i, 0] * blk[4] + C[i, 1] * blk[5] + C[i, 2] * blk[6]
+    blk[12] = blk[8]
+    for i in range(1, 9):
+        blk[i] = 0.0
+    blk[0] = blk[0] - T if blk[0] < 2.0 * T else 0.0
 
 
 @_jit
@@ -405,19 +497,25 @@ _COMPILED: SimpleNamespace | None = None
 
 
 def compiled() -> SimpleNamespace:
-    """The three kernels, compiled (or loaded from numba's cache) on the first call: call it
+    """The kernels, compiled (or loaded from numba's cache) on the first call: call it
     while a model is built, never in a measure's first step, where compiling would look like
     a hang."""
     global _COMPILED
     if _COMPILED is None:
         q, g, P = np.array((1.0, 0.0, 0.0, 0.0)), np.zeros(6), np.eye(9) * 1e-4
-        par, stats, out = np.zeros(14), np.zeros(17), np.zeros(5)
+        par, blk, out = np.zeros(14), np.zeros(27), np.zeros(5)
         par[0:3] = (0.0, 0.0, 1.0)
         par[13] = np.inf
         predict(q, g, P, 0.0, 0.0, 0.0, 0.01, np.zeros(3), 0.0, 0.0)
-        vector_update(q, g, P, 0.0, 0.0, 9.8, par, stats, 0.1, 1.0, out)
+        acc_par = np.array((0.0, 0.0, 1.0, 9.8, 0.09, 100.0, 0.01, 1.0, 2.0))
+        vector_update(q, g, P, 0.0, 0.0, 9.8, acc_par, np.zeros(17), 0.1, 1.0, out)
+        for _ in range(3):
+            block_update(q, g, P, 0.0, 0.0, 9.8, 0.01, acc_par, blk, 0.5, 1.0, out)
         mag_update(q, g, P, 0.0, 0.2, -0.4, par, 1.0, out)
         _COMPILED = SimpleNamespace(
-            predict=predict, vector_update=vector_update, mag_update=mag_update
+            predict=predict,
+            vector_update=vector_update,
+            block_update=block_update,
+            mag_update=mag_update,
         )
     return _COMPILED

@@ -14,13 +14,26 @@ whose observation is the quaternion the accelerometer and magnetometer give toge
 - prediction runs at every gyroscope sample (trapezoidal rate between two samples), with a
   process noise that grows with the rate: what is left of the gyroscope's scale error and
   its cross-axis sensitivity turn a fast rotation into an angle error (``gyro_scale``);
-- the accelerometer observes gravity as a vector (its magnitude too), with a covariance that
-  adapts to the linear acceleration the body undergoes: the covariance of the accelerometer
-  turned into the reference frame, averaged over ``ext_tau`` s, is added to it (gravity
-  does not move there, linear acceleration does; in the spirit of Suh 2010's
-  external-acceleration handling, but measured without the filter's own gain, so a filter
-  that follows a shake cannot talk itself into trusting it); a sample whose innovation
-  fails the chi-square test at ``acc_gate`` (a jolt) is rejected;
+- the accelerometer observes gravity as a vector (its magnitude too), under two models of
+  the linear acceleration the body undergoes, which share its information. Every sample,
+  with a covariance that adapts to the linear acceleration: the covariance of the
+  accelerometer turned into the reference frame, averaged over ``ext_tau`` s and counted
+  for its correlation time, is added to it (gravity does not move there, linear
+  acceleration does; in the spirit of Suh 2010's external-acceleration handling, but
+  measured without the filter's own gain, so a filter that follows a shake cannot talk
+  itself into trusting it). And every ``acc_block`` s, as the mean of the last two blocks
+  under a triangular window in the reference frame, with the covariance the successive
+  means' differences show (averaged over ``block_tau`` s): what tells the tilt is the
+  linear acceleration at the low frequencies the filter runs at, and a shake at a few Hz
+  averages out of such a mean. The block means take the share of the information that the
+  per-sample path counts as motion (none at rest, nearly all in a hard shake). Alone, the
+  per-sample path is 10-20 times too wary of a 3 Hz shake (its power is large, its mean
+  small), so the tilt's variance, and through the dip angle the heading's, stays wide and
+  the magnetometer cannot hold the heading (worst of 30 shaking runs 0.92 deg; 0.29 with
+  the block means); alone, the block means are slow to correct and take a slow
+  acceleration for a tilt and a gyroscope bias (``target3d``: 1.38 deg mean against 0.55).
+  A sample or mean whose innovation fails the chi-square test at ``acc_gate`` (a jolt) is
+  rejected;
 - the magnetometer observes its heading only (``mag_mode = "heading"``, the default: no
   field can tilt the estimate) or the field's direction (``"vector"``: it helps the tilt
   too, and is not disturbed by linear acceleration), and is rejected when the field's norm
@@ -72,7 +85,11 @@ class MekfSettings:
     per axis);
     ``gravity``: m/s^2; ``mag_noise``: magnetometer noise and calibration residual relative
     to the field; ``acc_gate`` / ``mag_gate``: chi-square gate probabilities; ``ext_tau``:
-    s over which the linear acceleration's power is averaged; ``mag_norm_tol``: relative
+    s over which the linear acceleration's power is averaged; ``ext_kappa_max``: the
+    largest correlation factor of that power (samples per independent one);
+    ``acc_block``: s of one block of the accelerometer's block means (the mean fused spans
+    two; 0: none, the per-sample path takes all the information); ``block_tau``: s over which
+    the covariance of the block means is averaged; ``mag_norm_tol``: relative
     window of the field's norm; ``mag_dip_tol_deg``: window of its dip angle (deg);
     ``ref_tau``: s over which the field's norm and dip are learnt; ``reacquire_s``: s of
     rejected headings before the heading is taken again; ``align_s``: s of coarse
@@ -100,6 +117,8 @@ class MekfSettings:
     acc_gate: float = 0.9999
     mag_gate: float = 0.9999
     ext_tau: float = 0.5
+    acc_block: float = 1.0
+    block_tau: float = 2.0
     ext_kappa_max: float = 100.0
     mag_norm_tol: float = 0.08
     mag_dip_tol_deg: float = 4.0
@@ -123,7 +142,15 @@ class MekfSettings:
             object.__setattr__(self, "gyro_noise", tuple(float(v) for v in g))
         elif not (isinstance(g, (int, float)) and math.isfinite(g) and g > 0):
             raise ValueError(f"gyro_noise must be a number > 0 or 3 of them, got {g!r}")
-        for name in ("bias_walk", "acc_noise", "gravity", "mag_noise", "ext_tau", "step_tau"):
+        for name in (
+            "bias_walk",
+            "acc_noise",
+            "gravity",
+            "mag_noise",
+            "ext_tau",
+            "block_tau",
+            "step_tau",
+        ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a number > 0, got {v!r}")
@@ -136,6 +163,7 @@ class MekfSettings:
             if not (isinstance(v, (int, float)) and 0.0 < v < 1.0):
                 raise ValueError(f"{name} must be a probability in (0, 1), got {v!r}")
         for name in (
+            "acc_block",
             "gyro_scale",
             "scale_std0",
             "scale_walk",
@@ -182,6 +210,9 @@ class Mekf:
         self.acc_par[3] = s.gravity
         self.acc_par[4] = s.acc_noise**2
         self.acc_par[5] = s.ext_kappa_max
+        self.acc_par[6] = s.acc_block
+        self.acc_par[7] = s.block_tau
+        self.acc_par[8] = 1.0 if s.acc_block > 0 else 0.0  # the block means are fused
         self.ext = 0.0  # linear acceleration's power per axis, (m/s^2)^2 (a diagnostic)
         self.mag_par = np.zeros(npk.MAG_PARAMS)
         self.mag_par[0:3] = ref.up
@@ -200,6 +231,7 @@ class Mekf:
         self.acc_gate = chi2_ppf(s.acc_gate, 3)
         self.mag_gate = chi2_ppf(s.mag_gate, 3 if s.mag_mode == "vector" else 1)
         self.acc_stats = np.zeros(npk.STATS)  # acc in the reference frame: mean, covariance
+        self.acc_blk = np.zeros(npk.BLOCK)  # the accelerometer's block sums and means
         self.mag_norm: float | None = None
         self.mag_dip: float | None = None
         self._mag_refused_since: float | None = None
@@ -207,6 +239,8 @@ class Mekf:
         self.counters = {
             "acc_fused": 0,
             "acc_rejected": 0,
+            "block_fused": 0,
+            "block_rejected": 0,
             "mag_fused": 0,
             "mag_rejected": 0,
             "mag_disturbed": 0,
@@ -235,7 +269,7 @@ class Mekf:
         self._alignment = None
         if start is None:
             return False
-        q, P, stats, norm, dip = start
+        q, P, stats, D, norm, dip = start
         self.q[:] = q
         self.g[:] = 0.0
         self.P[:] = 0.0
@@ -243,6 +277,8 @@ class Mekf:
         if self.P.shape[0] > 6:
             self.P[6:, 6:] = self.s.scale_std0**2 * np.eye(3)
         self.acc_stats[:] = stats
+        self.acc_blk[:] = 0.0
+        self.acc_blk[17:26] = D.reshape(9)
         self.mag_norm, self.mag_dip = norm, dip
         self.t = t
         self._w = (float(gyro[0]), float(gyro[1]), float(gyro[2]))
@@ -288,10 +324,18 @@ class Mekf:
         self.k.vector_update(self.q, self.g, self.P, acc[0], acc[1], acc[2], self.acc_par,
                              self.acc_stats, a, self.acc_gate, out)  # fmt: skip
         self.ext = float(out[3]) / 3.0
+        share = float(out[4])
         if out[1] == npk.ACCEPTED:
             self.counters["acc_fused"] += 1
         else:
             self.counters["acc_rejected"] += 1
+        if not (dt > 0 and s.acc_block > 0):
+            return
+        self.k.block_update(self.q, self.g, self.P, acc[0], acc[1], acc[2], dt, self.acc_par,
+                            self.acc_blk, share, self.acc_gate, out)  # fmt: skip
+        status = out[1]
+        if status != npk.PENDING:
+            self.counters["block_fused" if status == npk.ACCEPTED else "block_rejected"] += 1
 
     def _mag(self, t: float, mag: tuple[float, float, float], dt: float) -> None:
         s, out, par = self.s, self.out, self.mag_par
@@ -397,13 +441,18 @@ class _Alignment:
 
     def result(
         self, ref: Reference, s: MekfSettings
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float] | None:
-        """(q now, P, the accelerometer's statistics in the reference frame, the field's
-        norm and dip angle), or None when the means give no attitude. The tilt's variance is
-        the mean's: the samples' spread over the number of independent samples among them
-        (their number over the correlation factor of :func:`.kernels.vector_update`: a
-        periodic motion is not white); the heading's adds the tilt's leak through the dip
-        angle."""
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float] | None:
+        """(q now, P, the first covariance ``D`` of the accelerometer's block means in the
+        reference frame, the field's norm and dip angle), or None when the means give no
+        attitude. The tilt's variance is the mean's: the samples' spread over the number of
+        independent samples among them (their number over their correlation factor ``kappa
+        = pi sqrt(var / var_step)``, ``var`` and ``var_step`` the variances of the vector and
+        of its steps from one sample to the next: the sample rate over twice the motion's
+        frequency for a sinusoid, clipped to [1, ``ext_kappa_max``]; a periodic motion is not
+        white); the heading's adds the tilt's leak through the dip angle. ``D`` is the spread
+        beyond the sensor's noise as one block's mean would see it were it white with that
+        correlation (``kappa`` samples' worth each): wary, until the filter has measured the
+        means' own differences."""
         n = self.n
         a, m = self.sa / n, self.sm / n
         q0 = triad_quat(a, m, ref)
@@ -429,8 +478,13 @@ class _Alignment:
         P[:3, :3] = tilt_var * (np.eye(3) - np.outer(u, u)) + head_var * np.outer(u, u)
         P[3:, 3:] = s.bias_std0**2 * np.eye(3)
         R0 = npk.quat_matrix(q0)  # the first sample's frame -> reference
+        r_var = s.acc_noise**2
+        shrink = max(0.0, 1.0 - 3.0 * r_var / var) if var > 0.0 else 0.0
+        dt = (self.t - self.t0) / max(n - 1, 1)  # the mean sample interval
+        per_block = kappa * shrink * dt / s.acc_block if s.acc_block > 0 else 0.0
+        D = per_block * (R0 @ cov @ R0.T)
         stats = np.zeros(npk.STATS)
         stats[0:3] = R0 @ a
         stats[3:12] = (R0 @ cov @ R0.T).reshape(9)
         stats[15] = self.steps / (n - 1) if n > 1 else 0.0
-        return q / np.linalg.norm(q), P, stats, norm, dip
+        return q / np.linalg.norm(q), P, stats, D, norm, dip

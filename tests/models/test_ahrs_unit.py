@@ -257,7 +257,58 @@ def test_the_filter_refuses_bad_settings():
         MekfSettings(scale_std0=-0.01)
     with pytest.raises(ValueError, match="scale_walk"):
         MekfSettings(scale_walk=math.nan)
+    with pytest.raises(ValueError, match="acc_block"):
+        MekfSettings(acc_block=-1.0)
+    with pytest.raises(ValueError, match="block_tau"):
+        MekfSettings(block_tau=0.0)
     assert MekfSettings(gyro_noise=[1e-3, 2e-3, 3e-3]).gyro_noise == (1e-3, 2e-3, 3e-3)
+
+
+def _feed_still_frame(acc_world, rate=100.0):
+    """Both accelerometer paths fed ``acc_world`` (N, 3), m/s^2, at the identity attitude
+    with P = 0 (so nothing moves the estimate): (the per-sample path's added covariance's
+    trace, the block means' covariance ``D``, how many block means were compared, the mean
+    share of the information given to the block means)."""
+    q, g, P, out = np.array((1.0, 0.0, 0.0, 0.0)), np.zeros(6), np.zeros((6, 6)), np.zeros(5)
+    par = np.zeros(npk.ACC_PARAMS)
+    par[0:3], par[3], par[4], par[5] = UP, 9.81, 0.3**2, 100.0
+    par[6], par[7], par[8] = 1.0, 2.0, 1.0
+    stats, blk = np.zeros(npk.STATS), np.zeros(npk.BLOCK)
+    dt, added, shares = 1.0 / rate, 0.0, []
+    for z in acc_world:
+        npk.vector_update(q, g, P, *z, par, stats, min(1.0, dt / 0.5), 1e9, out)
+        added = out[3]
+        shares.append(out[4])
+        npk.block_update(q, g, P, *z, dt, par, blk, out[4], 1e9, out)
+    return added, blk[17:26].reshape(3, 3), blk[26], float(np.mean(shares[500:]))
+
+
+def test_block_means_see_through_a_shake_that_the_per_sample_path_counts_in_full():
+    """A 1 g shake at 3 Hz (thesis ch. 7.1.3): the per-sample path, which counts the
+    acceleration's power for its correlation time, adds hundreds of (m/s^2)^2; the block
+    means' covariance, what is left of it at the filter's low frequencies, is 1000 times
+    smaller, and the block means get nearly all the information. On white noise alone
+    ``D`` is the noise of a Bartlett mean, 3 sigma^2 / n, and the per-sample path keeps
+    nearly all of it (the filter as it was without block means)."""
+    rng = np.random.default_rng(1)
+    t = np.arange(6000) / 100.0
+    noise = rng.normal(0.0, 0.3, (t.size, 3))
+    still = noise + 9.81 * UP
+    added, D, compared, share = _feed_still_frame(still)
+    assert compared == 58  # one a second from the third block's end
+    assert np.trace(D) == pytest.approx(3 * 0.3**2 / 100, rel=0.35)
+    assert share < 0.1, share
+    shake = still.copy()
+    shake[:, 0] += 10.0 * np.sin(2 * np.pi * 3.0 * t)
+    shake[:, 1] += 3.2 * np.sin(2 * np.pi * 2.31 * t)
+    added, D, _, share = _feed_still_frame(shake)
+    assert added > 300.0, added
+    assert np.trace(D) < added / 1000.0, (np.trace(D), added)
+    assert share > 0.95, share
+    slow = still.copy()  # 0.27 m/s^2 at 1/6 Hz (target3d): the blocks see it as motion
+    slow[:, 0] += 0.27 * np.cos(2 * np.pi * t / 6.0)
+    _, D, _, _ = _feed_still_frame(slow)
+    assert D[0, 0] > 5 * 0.3**2 / 100, D[0, 0]
 
 
 def test_alignment_holds_the_estimate_back_then_starts_near_the_truth():
