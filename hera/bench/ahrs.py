@@ -347,13 +347,19 @@ def node_cpu(backend: str, use: str | None, seconds: float, settle: float = 12.0
         spec.write_text(CPU_SPEC.format(tag=os.getpid(), backend=backend, model=model))
         run = Path(tmp) / "run"
         cmd = [sys.executable, "-m", "hera", "up", str(spec), "--run-dir", str(run)]
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        log = Path(tmp) / "up.log"
+        with log.open("wb") as out:
+            proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=out)
         try:
-            deadline = time.monotonic() + 60.0
+            # a fresh install compiles its numba kernels on the first `hera up` (30-60 s,
+            # more on a busy machine) before any node starts
+            deadline = time.monotonic() + 240.0
             pid = None
             while pid is None:
                 if time.monotonic() > deadline or proc.poll() is not None:
-                    raise RuntimeError(f"the cluster of {spec} did not start")
+                    tail = log.read_text(errors="replace").strip().splitlines()[-5:]
+                    why = " | ".join(tail) or "no output"
+                    raise RuntimeError(f"the cluster of {spec} did not start: {why}")
                 try:
                     state = json.loads((run / "launcher.json").read_text())
                     pid = state["nodes"]["computer"]["pid"]

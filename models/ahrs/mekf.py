@@ -442,17 +442,17 @@ class _Alignment:
     def result(
         self, ref: Reference, s: MekfSettings
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float] | None:
-        """(q now, P, the first covariance ``D`` of the accelerometer's block means in the
-        reference frame, the field's norm and dip angle), or None when the means give no
-        attitude. The tilt's variance is the mean's: the samples' spread over the number of
-        independent samples among them (their number over their correlation factor ``kappa
-        = pi sqrt(var / var_step)``, ``var`` and ``var_step`` the variances of the vector and
-        of its steps from one sample to the next: the sample rate over twice the motion's
-        frequency for a sinusoid, clipped to [1, ``ext_kappa_max``]; a periodic motion is not
-        white); the heading's adds the tilt's leak through the dip angle. ``D`` is the spread
-        beyond the sensor's noise as one block's mean would see it were it white with that
-        correlation (``kappa`` samples' worth each): wary, until the filter has measured the
-        means' own differences."""
+        """(q now, P, the accelerometer's statistics in the reference frame, the first
+        covariance ``D`` of its block means there, the field's norm and dip angle), or None
+        when the means give no attitude. The tilt's variance is the mean's: the samples'
+        spread over the number of independent samples among them (their number over their
+        correlation factor ``kappa = pi sqrt(var / var_step)``, ``var`` and ``var_step`` the
+        variances of the vector and of its steps from one sample to the next: the sample
+        rate over twice the motion's frequency for a sinusoid, clipped to [1,
+        ``ext_kappa_max``]; a periodic motion is not white); the heading's adds the tilt's
+        leak through the dip angle. ``D`` is the spread beyond the sensor's noise as one
+        block's mean would see it were it white with that correlation (``kappa`` samples'
+        worth each): wary, until the filter has measured the means' own differences."""
         n = self.n
         a, m = self.sa / n, self.sm / n
         q0 = triad_quat(a, m, ref)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 
 import numpy as np
+import pytest
 
 from hera.bench import ahrs as bench
 
@@ -80,3 +81,9 @@ def test_ratio_is_paired_over_turns(monkeypatch):
     for name in bench.EKFS:
         assert rows[name]["ratio"] == 3.0, rows[name]
         assert rows[name]["us"] / rows[bench.OURS]["us"] == 0.75  # unpaired: misleading
+
+
+def test_a_cluster_that_does_not_start_says_why():
+    """``--cpu``'s cluster: when ``hera up`` exits, its last words are in the error."""
+    with pytest.raises(RuntimeError, match="did not start: .*estimation_backend must be one of"):
+        bench.node_cpu("bogus", None, 1.0)
