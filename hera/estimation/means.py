@@ -58,7 +58,12 @@ def circular_mean(angles: Any, weights: Any) -> np.ndarray:
     total = float(w.sum())
     if total == 0.0:
         raise ValueError("circular_mean: the weights sum to 0")
-    return wrap_angle(ref + (w @ wrap_angle(a - ref)) / total)
+    d = wrap_angle(a - ref)
+    # products then a sum, not a BLAS dot: a dot may fuse multiply and add (FMA) or not,
+    # machine by machine, and symmetric sigma points with huge weights then cancel exactly
+    # on one machine and to 1e-14 on another
+    s = np.sum(w.reshape((-1,) + (1,) * (d.ndim - 1)) * d, axis=0)
+    return wrap_angle(ref + s / total)
 
 
 def _align(q: np.ndarray, ref: np.ndarray) -> np.ndarray:
