@@ -10,16 +10,31 @@ from hera.campaign.verdict import EPS, Verdict, fmt, settings
 
 
 def overlapping(firings: list[Firing]) -> list[tuple[Firing, Firing]]:
-    """Pairs of firings (start order) that overlap in time."""
+    """Pairs of firings (start order) that overlap in time: on the sync clock the fire logs
+    were written on when every firing has it (one machine's logs share it: see
+    :class:`~hera.campaign.history.Firing`), else on the wall clock."""
+    spans: list[tuple[float, float, Firing]] = []
+    for f in firings:
+        if f.clock_start is None or f.clock_end is None:
+            spans = [(g.start, g.end, g) for g in firings]
+            break
+        spans.append((f.clock_start, f.clock_end, f))
     out = []
-    fs = sorted(firings, key=lambda x: x.start)
-    latest: Firing | None = None
-    for cur in fs:
-        if latest is not None and cur.start < latest.end - EPS:
-            out.append((latest, cur))
-        if latest is None or cur.end > latest.end:
+    latest: tuple[float, float, Firing] | None = None
+    for cur in sorted(spans, key=lambda x: x[0]):
+        if latest is not None and cur[0] < latest[1] - EPS:
+            out.append((latest[2], cur[2]))
+        if latest is None or cur[1] > latest[1]:
             latest = cur
     return out
+
+
+def _overlap_ms(a: Firing, b: Firing) -> float:
+    """How long ``b`` started before ``a`` ended (ms), on the clock :func:`overlapping`
+    compared them on."""
+    if a.clock_end is not None and b.clock_start is not None:
+        return (a.clock_end - b.clock_start) * 1000.0
+    return (a.end - b.start) * 1000.0
 
 
 def check_overlaps(h: History) -> Verdict:
@@ -40,7 +55,7 @@ def check_overlaps(h: History) -> Verdict:
                 {
                     "group": g,
                     "firings": f"{a.node} {a.start:.3f}-{a.end:.3f}",
-                    "overlaps": f"{b.node} {b.start:.3f} ({(a.end - b.start) * 1000:.1f} ms)",
+                    "overlaps": f"{b.node} {b.start:.3f} ({_overlap_ms(a, b):.1f} ms)",
                 }
             )
     n = sum(len(fs) for fs in groups.values())

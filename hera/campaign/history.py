@@ -78,7 +78,12 @@ class Stream:
 class Firing:
     """One sound: ``start`` to ``end`` (wall s), by ``node``'s ``measure`` of ``group``,
     under grant (``epoch``, ``token``) whose lease ended at ``deadline`` (wall s); the grant
-    fields are None for an unsynchronised firing."""
+    fields are None for an unsynchronised firing. ``clock_start`` and ``clock_end``: the
+    same on the sync clock the fire log was written on (None if unknown). The fire logs of
+    one machine share that clock, so firings are ordered there exactly; on the wall clock
+    each firing is placed through its own offset, interpolated between samples of the two
+    clocks read one after the other, whose jitter (a thread descheduled between the two
+    reads) can move two firings a millisecond apart past each other."""
 
     start: float
     end: float
@@ -88,6 +93,8 @@ class Firing:
     epoch: int | None = None
     token: int | None = None
     deadline: float | None = None
+    clock_start: float | None = None
+    clock_end: float | None = None
 
 
 @dataclass(frozen=True)
@@ -334,9 +341,9 @@ def parse_fire_line(
     if len(parts) not in (3, 6):
         return None
     try:
-        start, end = float(parts[0]), float(parts[1])
-        offset = to_wall(start) - start  # one offset per firing: its length is kept
-        start, end = start + offset, end + offset
+        clock_start, clock_end = float(parts[0]), float(parts[1])
+        offset = to_wall(clock_start) - clock_start  # one offset per firing: its length kept
+        start, end = clock_start + offset, clock_end + offset
         if len(parts) == 6 and parts[3] != "-":
             epoch, token = int(parts[3]), int(parts[4])
             deadline = float(parts[5]) + offset
@@ -344,7 +351,9 @@ def parse_fire_line(
             epoch = token = deadline = None
     except ValueError:
         return None
-    return Firing(start, end, parts[2], measure, group, epoch, token, deadline)
+    return Firing(
+        start, end, parts[2], measure, group, epoch, token, deadline, clock_start, clock_end
+    )
 
 
 def read_firings(
