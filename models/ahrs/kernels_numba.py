@@ -228,6 +228,26 @@ def predict(q, g, P, wx, wy, wz, dt, q_att, q_bias, q_scale):
 
 
 @_jit
+def _to_body(M, R):
+    """``R^T M R``: a 3x3 covariance in the reference frame, seen in the body frame."""
+    MR = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += M[i, k] * R[k, j]
+            MR[i, j] = acc
+    out = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += R[k, i] * MR[k, j]
+            out[i, j] = acc
+    return out
+
+
+@_jit
 def vector_update(q, g, P, zx, zy, zz, par, stats, alpha, gate, out):
     s = par[3]
     r_var = par[4]
@@ -264,21 +284,11 @@ def vector_update(q, g, P, zx, zy, zz, par, stats, alpha, gate, out):
     shrink = max(0.0, 1.0 - 3.0 * r_var / var) if var > 0.0 else 0.0
     kappa *= shrink
     # Cb = kappa R^T C R; Rn = r_var I + Cb
-    CR = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += C[i, k] * R[k, j]
-            CR[i, j] = acc
-    Rn = np.empty((3, 3))
+    Rn = _to_body(C, R)
     tr = 0.0
     for i in range(3):
         for j in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += R[k, i] * CR[k, j]
-            Rn[i, j] = kappa * acc
+            Rn[i, j] *= kappa
         tr += Rn[i, i]
     for i in range(3):
         Rn[i, i] += r_var
@@ -335,25 +345,6 @@ def block_update(q, g, P, zx, zy, zz, dt, par, blk, share, gate, out):
             blk[13 + i] = m[i]
             tr += blk[17 + 4 * i]
         blk[16] = 1.0
-        # Rn = R^T (D + noise I) R
-        DR = np.empty((3, 3))
-        for i in range(3):
-            for j in range(3):
-                acc = 0.0
-                for k in range(3):
-                    acc += blk[17 + 3 * i + k] * R[k, j]
-                DR[i, j] = acc
-        Rn = np.empty((3, 3))
-        for i in range(3):
-            for j in range(3):
-                acc = 0.0
-                for k in range(3):
-                    acc += R[k, i] * DR[k, j]
-                Rn[i, j] = acc
-            Rn[i, i] += noise
-        for i in range(3):
-            for j in range(3):
-                Rn[i, j] /= max(share, 1e-3)
         z = np.empty(3)
         v = np.empty(3)
         s = par[3]
@@ -366,6 +357,11 @@ def block_update(q, g, P, zx, zy, zz, dt, par, blk, share, gate, out):
         out[2] = nu2
         out[3] = tr
         if share >= 1e-3:
+            Rn = _to_body(blk[17:26].reshape((3, 3)), R)  # R^T (D + noise I) R / share
+            for i in range(3):
+                Rn[i, i] += noise
+                for j in range(3):
+                    Rn[i, j] /= share
             _vector_core(q, g, P, z, v, s, Rn, gate, out)
         if out[1] == ACCEPTED:
             Rq = np.empty((3, 3))
