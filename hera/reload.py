@@ -13,10 +13,14 @@ What :func:`reload_code` does on the node that receives the ``reload`` control v
    never reloaded: new runtime code needs a restart.
 2. **Blue/green replacement.** Every measure whose class now loads as a different class
    is replaced under the supervisor: a new worker of the new class (green) is created and
-   ``init`` run while the old one (blue) keeps publishing; then blue is abandoned (it never
-   publishes again) and stopped after its current step, green receives blue's attributes
-   through :meth:`hera.measure.Measure.code_change` and starts stepping. The rest of the
-   node is untouched; a measure that is not running gets the new code at its next start.
+   ``init`` run while the old one (blue) keeps publishing; then, at blue's next deadline
+   (at once for a period over :data:`SWITCH_WAIT`), blue ends instead of stepping, closes
+   its measure and, in its own thread, hands over: green takes its place under the
+   supervisor, receives blue's attributes through
+   :meth:`hera.measure.Measure.code_change` and steps in that deadline's place, so the
+   output goes on at its period (a blue stuck in a step is abandoned and replaced without
+   handing over). The rest of the node is untouched; a measure that is not running gets
+   the new code at its next start.
 3. **Rollback.** If the new code fails to import, or a green fails to ``init``, to take
    the handover or to complete its first step, the old modules are put back, every
    measure already replaced in this reload is replaced again by its old code (with the
@@ -38,6 +42,7 @@ from hera.plugins import find_measure
 
 if TYPE_CHECKING:  # pragma: no cover
     from hera.node import Node
+    from hera.worker import Worker
 
 log = logging.getLogger("hera.reload")
 
@@ -80,6 +85,8 @@ def service_packages(node: Node) -> tuple[str, ...]:
 
 START_TIMEOUT = 10.0
 """Seconds a new worker has to run ``init`` and to complete its first step."""
+SWITCH_WAIT = 0.5
+"""Seconds: a measure of a longer period is replaced at once, not at its next deadline."""
 
 
 class ReloadError(ValueError):
@@ -219,15 +226,31 @@ def swap(node: Node, name: str, cls: type, timeout: float = START_TIMEOUT) -> di
             green.stop()
             why = failed[0] if failed else f"init took over {timeout:g} s"
             raise ReloadError(f"measure {name}: the new code does not start ({why}); rolled back")
-    t_switch = time.monotonic()
-    old = sup.replace(name, green, make)
-    period = decl.resolve(cls).period
-    if old is not None:
-        old.thread.join(max(1.0, 3 * period))
-    handed = old is not None and not old.thread.is_alive() and old.measure is not None
-    if handed:
-        green.handover = (getattr(old.measure_cls, "version", ""), dict(vars(old.measure)))
-    gate.set()
+    handed = threading.Event()
+    switched: list[float] = []
+
+    def hand(old: Worker) -> None:
+        """In blue's thread, at its deadline, its measure closed: green takes its place."""
+        try:
+            sup.replace(name, green, make)
+            if old.measure is not None:
+                state = dict(vars(old.measure))
+                green.handover = (getattr(old.measure_cls, "version", ""), state)
+        finally:
+            switched.append(time.monotonic())
+            handed.set()
+            gate.set()
+
+    period = blue.spec.period
+    blue.retire(hand, now=period > SWITCH_WAIT)
+    if not handed.wait(max(1.0, 3 * period)):
+        if blue.cancel_retire():  # blue is stuck in a step: replaced without its state
+            switched.append(time.monotonic())
+            sup.replace(name, green, make)
+            gate.set()
+        else:
+            handed.wait()  # blue is handing over right now
+    t_switch = switched[0]
     while green.stats.steps < 1:
         if failed or time.monotonic() > deadline:
             break
@@ -237,7 +260,7 @@ def swap(node: Node, name: str, cls: type, timeout: float = START_TIMEOUT) -> di
         first = green.first_step_at or time.monotonic()
         return {
             "running": True,
-            "handover": handed,
+            "handover": green.handover is not None,
             "switch_ms": round((first - t_switch) * 1e3, 3),
             "undo": lambda: swap(node, name, old_cls),
         }

@@ -145,6 +145,9 @@ class Worker:
         """Set once ``init`` has returned (a gated worker then waits for its gate)."""
         self.handover: tuple[str, Mapping[str, Any]] | None = None
         """(old version, old state) for :meth:`Measure.code_change`, set before the gate."""
+        self._retire: Callable[[Worker], None] | None = None
+        self._retire_lock = threading.Lock()
+        self._retiring = False
         self.thread = threading.Thread(
             target=self._run, name=f"measure-{self.spec.name}-{self.id}", daemon=True
         )
@@ -156,6 +159,25 @@ class Worker:
     def stop(self) -> None:
         """Ask the loop to end after the current step."""
         self._stop.set()
+
+    def retire(self, hand: Callable[[Worker], None], now: bool = False) -> None:
+        """The old side of a hot reload: end at the next deadline instead of stepping (at
+        once if ``now``) and, the measure closed, call ``hand(self)`` in this worker's
+        thread before reporting the end, so that the replacement steps on this worker's
+        schedule. Not called if the worker crashes first; :meth:`cancel_retire` takes it
+        back."""
+        with self._retire_lock:
+            self._retire = hand
+        if now:
+            self._stop.set()
+
+    def cancel_retire(self) -> bool:
+        """Take back :meth:`retire`; False if ``hand`` has already been called."""
+        with self._retire_lock:
+            if self._retiring:
+                return False
+            self._retire = None
+            return True
 
     def inject(self, fault: str) -> None:
         """Make the next step ``crash`` (raise InjectedFault) or ``hang`` (block until the node
@@ -197,7 +219,19 @@ class Worker:
                     log.warning("measure %s close() failed: %s", self.spec.name, e)
             self.step_started = None
             self.ended_at = time.monotonic()
+            if error is None:
+                self._hand_over()
             self._on_exit(self, error)
+
+    def _hand_over(self) -> None:
+        with self._retire_lock:
+            hand = self._retire
+            self._retiring = hand is not None
+        if hand is not None:
+            try:
+                hand(self)
+            except Exception:
+                log.exception("measure %s: handing over to its new code failed", self.spec.name)
 
     def _wait_gate(self) -> bool:
         """Wait for the gate; False if the worker was stopped first."""
@@ -254,6 +288,8 @@ class Worker:
                 self.stats.overruns += missed
                 k += missed
                 deadline = start + k * period
+            if self._retire is not None:
+                break  # a hot reload: the new code steps at this deadline, in this one's place
             if self._changes:
                 self._apply_changes()
             self.stats.lateness.append(now - deadline)

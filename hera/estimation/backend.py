@@ -164,10 +164,15 @@ class _Kernels:
 
     def marker(self) -> Path:
         """The file that says every kernel of this source, numba, Python and CPU is in the
-        cache (a different one of any of these compiles again, as numba would)."""
+        cache (a different one of any of these compiles again, as numba would). numba keys
+        its cache by the source file's absolute path too (another install or checkout of the
+        same version compiles again): so does the marker, or that compile would run silently,
+        one kernel after the other, in one process."""
         import numba
 
-        h = hashlib.sha256(Path(self._mod.__file__).read_bytes())
+        source = os.path.abspath(self._mod.__file__)  # as numba's cache locator takes it
+        h = hashlib.sha256(Path(source).read_bytes())
+        h.update(source.encode())
         h.update(f"{numba.__version__} {sys.version} {sys.platform}".encode())
         with contextlib.suppress(Exception):  # the CPU numba compiles for (name, features)
             from numba.core.registry import cpu_target

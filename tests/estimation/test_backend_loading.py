@@ -30,6 +30,28 @@ def test_cache_dir_is_per_user_and_numba_setting_wins(monkeypatch, env, expected
     assert backend.cache_dir() == Path(expected)
 
 
+def test_the_compile_marker_is_per_source_path_as_numbas_cache_is(tmp_path):
+    """numba caches a kernel under its source file's absolute path: a second install or
+    checkout of the same code compiles again, so it must not find the first one's marker
+    (it would then compile one kernel after the other, silently, instead of in parallel
+    with a line saying so)."""
+    import types
+
+    import numba  # noqa: F401  (a test requirement: the marker names numba's version)
+
+    source = Path(backend.__file__).with_name("kernels_numba.py").read_bytes()
+    markers = []
+    for place in ("one", "two", "one"):
+        (tmp_path / place).mkdir(exist_ok=True)
+        copy = tmp_path / place / "kernels_numba.py"
+        copy.write_bytes(source)
+        k = object.__new__(backend._Kernels)
+        k.cache, k._mod = tmp_path / "cache", types.SimpleNamespace(__file__=str(copy))
+        markers.append(k.marker())
+    assert markers[0] != markers[1] and markers[0] == markers[2]
+    assert all(m.parent == tmp_path / "cache" for m in markers)
+
+
 def test_prefer_refuses_an_unknown_name_and_changes_nothing_now():
     with pytest.raises(ValueError, match="unknown estimation backend 'cuda'"):
         backend.prefer("cuda")

@@ -25,6 +25,7 @@ import random
 from pathlib import Path
 
 import pytest
+from parallel import run_each
 from train_offline import train_run
 
 from hera.application import EvalOptions
@@ -37,21 +38,28 @@ FIG_6_5 = ("omega_acc", "track_sonar", "track_gyro", "track_radius", "track_mag"
 
 
 def _runs(tmp: Path, spec: str, seeds, omegas, duration: float, settle: float):
-    out = {}
-    for omega in omegas:
-        for seed in seeds:
-            world = {"omega": omega}
-            d = tmp / f"{spec}-{seed}-{omega}"
-            res = train_run(
-                spec,
-                d,
-                seed=seed,
-                duration=duration,
-                world=world,
-                options=EvalOptions(settle=settle),
-            )
-            out[(seed, omega)] = ({m: r for (m, _), r in res.items()}, d / "sim")
-    return out
+    keys = [(seed, omega) for omega in omegas for seed in seeds]
+    calls = [
+        dict(
+            spec=spec,
+            tmp=tmp / f"{spec}-{seed}-{omega}",
+            seed=seed,
+            duration=duration,
+            world={"omega": omega},
+            options=EvalOptions(settle=settle),
+        )
+        for seed, omega in keys
+    ]
+    return _scored(keys, calls)
+
+
+def _scored(keys, calls):
+    """{key: ({model: scores}, sim dir)} of the offline runs ``calls`` (on every core)."""
+    results = run_each(train_run, calls)
+    return {
+        key: ({m: r for (m, _), r in res.items()}, call["tmp"] / "sim")
+        for key, call, res in zip(keys, calls, results, strict=True)
+    }
 
 
 @pytest.fixture(scope="module")
@@ -113,21 +121,19 @@ def plain(tmp_path_factory):
 
 def _plain_after(tmp, seeds):
     """Runs of the plain world, every error counted from 10 s (``after`` = ``settle``)."""
-    out = {}
-    for omega in (0.84, -0.84):
-        for seed in seeds:
-            world = {"omega": omega, "phase": random.Random(seed).uniform(-math.pi, math.pi)}
-            d = tmp / f"train-{seed}-{omega}"
-            res = train_run(
-                "train",
-                d,
-                seed=seed,
-                duration=30.0,
-                world=world,
-                options=EvalOptions(after=10.0, settle=10.0),
-            )
-            out[(seed, omega)] = ({m: r for (m, _), r in res.items()}, d / "sim")
-    return out
+    keys = [(seed, omega) for omega in (0.84, -0.84) for seed in seeds]
+    calls = [
+        dict(
+            spec="train",
+            tmp=tmp / f"train-{seed}-{omega}",
+            seed=seed,
+            duration=30.0,
+            world={"omega": omega, "phase": random.Random(seed).uniform(-math.pi, math.pi)},
+            options=EvalOptions(after=10.0, settle=10.0),
+        )
+        for seed, omega in keys
+    ]
+    return _scored(keys, calls)
 
 
 def test_plain_world_ladder_holds_and_e7_stays_within_1pct_once_settled(plain):

@@ -191,3 +191,67 @@ def test_a_list_of_readings_is_published_in_order_and_counted():
         (100.0 + n + k / 10, [n, k]) for n in (1, 3) for k in range(3)
     ]
     assert (w.stats.published, w.stats.empty) == (6, 2)
+
+
+# -- retire: the old side of a hot reload -------------------------------------------------------
+class Journal(Measure):
+    """Steps and its close, each with the instant it happened."""
+
+    def init(self, args, ctx):
+        super().init(args, ctx)
+        self.events = args["events"]
+
+    def measure(self):
+        self.events.append(("step", time.monotonic()))
+        return [1.0]
+
+    def close(self):
+        self.events.append(("close", time.monotonic()))
+
+
+def start_journal(period):
+    events: list = []
+    w, published, done = start_worker(Journal, period, None, {"events": events})
+    return w, events, done
+
+
+def test_a_retiring_worker_hands_over_at_its_next_deadline_after_closing():
+    period = 0.05
+    w, events, done = start_journal(period)
+    while sum(e[0] == "step" for e in events) < 3:
+        time.sleep(0.001)
+    handed: list = []
+    w.retire(lambda old: handed.append((old, threading.current_thread(), time.monotonic())))
+    assert done.wait(5)
+    ((old, thread, t_hand),) = handed
+    assert old is w and thread is w.thread  # in the worker's own thread, before its end report
+    kinds = [e[0] for e in events]
+    assert kinds[-1] == "close" and "close" not in kinds[:-1]  # closed once, no step after
+    last_step = max(t for kind, t in events if kind == "step")
+    assert t_hand >= events[-1][1] >= last_step + period * 0.99  # at the deadline, not before
+
+
+def test_a_retire_taken_back_before_the_deadline_leaves_the_worker_stepping():
+    w, events, done = start_journal(0.2)
+    while not events:
+        time.sleep(0.001)
+    handed: list = []
+    w.retire(handed.append)
+    assert w.cancel_retire()
+    while sum(e[0] == "step" for e in events) < 3:
+        assert not done.is_set()
+        time.sleep(0.01)
+    w.stop()
+    assert done.wait(5)
+    assert handed == [] and events[-1][0] == "close"
+
+
+def test_retire_now_does_not_wait_for_a_long_period():
+    period = 30.0
+    w, events, done = start_journal(period)
+    while not events:
+        time.sleep(0.001)
+    handed: list = []
+    w.retire(handed.append, now=True)
+    assert done.wait(period / 2)  # long before its next deadline
+    assert handed == [w] and not w.cancel_retire()  # once handed over, it cannot be taken back
