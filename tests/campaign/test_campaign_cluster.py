@@ -4,8 +4,8 @@ sync setting the overlap checker must catch.
 Each runs ``hera campaign`` as a user would (a process, real nodes on loopback, the link
 proxy for network faults) and checks its verdicts, its report and that nothing is left
 running. CI runs the short thesis-ch5 and the broken sync setting; the short partitions
-and nemesis (about 40 s each; the partitions with nftables in namespaces runs in CI,
-``test_netns_links.py``) and the full campaigns (minutes each) are marked slow
+(behind the link proxy, and with nftables in namespaces in ``test_netns_links.py``) and
+nemesis (about 40 s each) and the full campaigns (minutes each) are marked slow
 (``pytest -m slow tests/campaign``); README "Fault campaigns" has their figures and
 commands.
 """

@@ -2,8 +2,8 @@
 reset and made lossy by rules in those namespaces (``hera campaign --links netns``).
 
 The rules are tested on real namespaces with plain sockets (what each rule does to TCP and
-UDP between two nodes, and to nobody else), then a short partitions campaign runs the
-train with every node in its namespace. Where namespaces or nftables are not available
+UDP between two nodes, and to nobody else), then (``-m slow``) a short partitions campaign
+runs the train with every node in its namespace. Where namespaces or nftables are not available
 (not root, no ``nft``), the tests are reported as not run, never as passed.
 """
 
@@ -209,6 +209,7 @@ def test_a_delay_fault_is_refused_in_namespaces(tmp_path):
     assert run.links == "proxy"  # auto: the proxy does delays
 
 
+@pytest.mark.slow  # CI budget: CI runs the short thesis-ch5 campaign and these rules
 def test_partitions_short_with_every_node_in_its_namespace(tmp_path):
     """The short partitions campaign on the train, nftables cutting the links: every
     checker passes, the nodes ran at their namespaces' addresses, and the namespaces are

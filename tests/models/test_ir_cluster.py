@@ -1,7 +1,9 @@
 """Seed 000 on real clusters: deploy/ir_tracking.toml and deploy/ir_grid.toml run by
 ``hera up``, scored by ``hera eval`` through the ``ir`` application.
 
-Default selection (CI), one run of each spec shared by the tests of this module:
+All marked slow (``pytest -m slow``; CI's 20 minutes run the live accuracy runs of the
+train and the AHRS, and the IR models offline in tests/models/test_ir_models.py). One run
+of each spec is shared by the tests of this module:
 
 - tracking (constant velocity, about 35 s): RMSE <= 0.5 cm on both model nodes with the
   medium + long pair while the long sensor's board is disconnected for 8 s mid-run
@@ -11,7 +13,7 @@ Default selection (CI), one run of each spec shared by the tests of this module:
   nodes, the hot block within one cell, the fused map no worse than IR alone, and a replay
   of the recordings giving the same maps.
 
-``-m slow``: the same over several seeds and the other scenarios (poor initial guess, the
+Also: the same over several seeds and the other scenarios (poor initial guess, the
 short sensor's outliers, a cold plate mapped for 60 s, the hidden hot block).
 """
 
@@ -83,6 +85,7 @@ def _errors(series, truth):
     return series.column("distance [cm]") - true
 
 
+@pytest.mark.slow  # CI budget: see the module docstring
 def test_tracking_rmse_is_under_half_a_cm_through_a_board_disconnection(tracking):
     run, t_off, t_on, *_ = tracking
     res = by_model(evaluate(run))
@@ -92,6 +95,7 @@ def test_tracking_rmse_is_under_half_a_cm_through_a_board_disconnection(tracking
         assert s["rmse_cm"] <= 0.5, (node, s)
 
 
+@pytest.mark.slow  # CI budget: see the module docstring
 def test_tracking_goes_on_without_the_long_sensor_and_takes_it_back(tracking):
     run, t_off, t_on, before, after, during = tracking
     assert during >= 300  # ~50 readings a second were missing for 8 s
@@ -110,6 +114,7 @@ def test_tracking_goes_on_without_the_long_sensor_and_takes_it_back(tracking):
         assert np.sqrt(np.mean(err[late] ** 2)) <= 0.5, s.node
 
 
+@pytest.mark.slow  # CI budget: see the module docstring
 def test_the_seeds_q_r_study_on_the_live_run(tracking):
     """Seed lab 2 scenarios 2 and 3 on the same data: a 150x larger R lags the most; a
     300x larger Q lags the least and is noisier than the default."""
@@ -140,7 +145,7 @@ def plate_run(tmp_path_factory):
     return tmp, c.run_dir
 
 
-@pytest.mark.slow  # a second live run of this module (CI runs the tracking one)
+@pytest.mark.slow
 def test_the_warm_plate_is_mapped_and_its_hot_block_found(plate_run):
     _, run = plate_run
     res = by_model(evaluate(run))
@@ -151,7 +156,7 @@ def test_the_warm_plate_is_mapped_and_its_hot_block_found(plate_run):
     assert fused["map_pct"] >= ir["map_pct"] and ir["hot_err_cm"] is None
 
 
-@pytest.mark.slow  # a second live run of this module (CI runs the tracking one)
+@pytest.mark.slow
 def test_a_replay_of_the_plate_gives_the_same_maps(plate_run):
     tmp, run = plate_run
     out = tmp / "again"

@@ -6,6 +6,9 @@ the fault, the three-sensor height RMSE within the issue's 4 mm over the whole s
 1.5 mm when still, and every seed filter behind it; the stuck sensor reported by the
 filters within 1 s, and the height after it within 5 mm; ``hera eval`` prints the comparison
 table and draws the plot.
+
+Marked slow (``pytest -m slow``): CI's 20 minutes run the live accuracy runs of the train and
+the AHRS, and the ToF models offline (tests/models/test_tof_models.py).
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from hera.models.tof.app import desk_truth, score_height
 from hera.recordings import read_recordings, read_start, start_marker
 
 ROOT = Path(__file__).resolve().parents[2]
+pytestmark = pytest.mark.slow
 FILTER_NODES = ("pc", "tof_centre")
 FAULT_AT = 20.0  # s after the epoch: the board tilted and held still, then moved again
 END_AT = 35.0
