@@ -47,6 +47,7 @@ import dataclasses
 import heapq
 import inspect
 import json
+import sys
 import threading
 import time
 from collections import deque
@@ -430,6 +431,8 @@ class FusionMeasure(Measure):
         try:
             checkpoints.save(self.ctx.state_dir, self.ctx.spec.name, entry)
         except Exception as e:  # cannot be pickled, or the disk refused: in memory only
+            if superseded(model):  # a hot reload loaded its class anew: the old code ends soon
+                return
             self._disk = False
             self.ctx.log.warning(
                 "no checkpoints of the model on disk (a node process that restarts starts"
@@ -598,6 +601,18 @@ class FusionMeasure(Measure):
         self._write_marker(force=True)
         if self._inbox is not None:
             self._inbox.close()
+
+
+def superseded(obj: object) -> bool:
+    """True if ``obj``'s class is no longer what its module's name gives (``hera reload``
+    loaded the module anew): pickle refuses such an object, and the measure holding it is
+    about to be replaced by the new code's, so its checkpoint is skipped, not given up."""
+    cls = type(obj)
+    module = sys.modules.get(cls.__module__)
+    found: Any = module
+    for part in cls.__qualname__.split("."):
+        found = getattr(found, part, None)
+    return module is not None and found is not cls
 
 
 def spec_models(spec: ClusterSpec) -> dict[str, type[FusionMeasure]]:

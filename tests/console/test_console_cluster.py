@@ -405,6 +405,11 @@ def test_reload_swaps_the_model_without_a_gap_and_rolls_back_bad_code(train):
         assert unknown.returncode == 2 and "no_such_module" in unknown.stderr
         runtime = train.hera("reload", "hera.fusion")
         assert runtime.returncode == 1 and "part of the runtime" in runtime.stdout, runtime.stdout
+        # the old code's checkpoints while the new one loaded were skipped, not given up on
+        # with a warning about lambdas (pickle refuses an object of a class loaded anew)
+        for node in ("computer", "nav_1"):
+            log = (train.run_dir / "logs" / f"{node}.log").read_text()
+            assert "no checkpoints of the model" not in log, node
     finally:
         rec.sub.undeclare()
         write_plugin(train.plugins, 2)

@@ -166,6 +166,8 @@ def test_an_out_of_tree_application_runs_scores_and_replays(installed, tmp_path)
     assert row["application"] == "thermo" and row["rmse_degc"] < 0.25
 
 
+@pytest.mark.slow  # CI budget: a second cold compile (45-60 s); CI's first is in
+# tests/estimation/test_backend_loading.py
 def test_the_install_compiles_its_kernels_once_into_a_user_cache(installed, tmp_path):
     """The README's install brings numba (a core dependency): ``hera bench kalman --quick``
     reports the compiled backend. The kernels are compiled once, with a line saying so,

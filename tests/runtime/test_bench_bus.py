@@ -4,9 +4,11 @@ speed is shown by the benchmark, never by timed assertions)."""
 import subprocess
 import sys
 
+import pytest
 from harness import cluster_env
 
 
+@pytest.mark.slow  # CI budget (34 s: seven clusters); bench scale's quick run stays in CI
 def test_bench_bus_quick_prints_every_figure(tmp_path):
     out = subprocess.run(
         [sys.executable, "-m", "hera", "bench", "bus", "--quick"],
