@@ -37,7 +37,8 @@ as ``hera replay`` runs one instance of it. After a hot reload (:mod:`hera.reloa
 measure takes over the old one's model state and the samples it held
 (:meth:`FusionMeasure.code_change`): a model with its own ``code_change(old_version,
 old_model)`` converts the old model's state itself; otherwise, when the model class keeps
-its name, the old model's attributes are carried over as they are.
+its name, the old model's attributes are carried over, with the old model's methods held
+in them (a filter's ``f`` and ``h``) bound to the new model (:func:`rebind`).
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ import json
 import sys
 import threading
 import time
+import types
 from collections import deque
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -111,8 +113,43 @@ def adopt_model(new: Any, old: Any) -> bool:
         return True
     if type(new).__qualname__ == type(old).__qualname__:
         vars(new).update(vars(old))
+        rebind(vars(new), old, new)
         return True
     return False
+
+
+def rebind(value: Any, old: Any, new: Any, seen: set[int] | None = None) -> Any:
+    """``value`` with every method bound to ``old`` found in it (in dicts, lists, tuples,
+    deques and the attributes of plain objects, in place where they are mutable) replaced by
+    ``new``'s method of that name. A model's filter keeps the model's own ``f`` and ``h``
+    (bound methods): carried over as they are, they would go on running the old code on
+    the old instance after a hot reload."""
+    seen = set() if seen is None else seen
+    if isinstance(value, types.MethodType):
+        if value.__self__ is old:
+            return getattr(new, value.__func__.__name__, value)
+        if value.__self__ is type(old):  # a class method
+            return getattr(type(new), value.__func__.__name__, value)
+        return value
+    if id(value) in seen or isinstance(value, _OPAQUE):
+        return value
+    seen.add(id(value))
+    if isinstance(value, dict):
+        for k, v in value.items():
+            value[k] = rebind(v, old, new, seen)
+    elif isinstance(value, (list, deque)):
+        for i, v in enumerate(value):
+            value[i] = rebind(v, old, new, seen)
+    elif isinstance(value, tuple):
+        items = [rebind(v, old, new, seen) for v in value]
+        if any(a is not b for a, b in zip(items, value, strict=True)):
+            return type(value)(items) if type(value) is tuple else type(value)(*items)
+    elif hasattr(value, "__dict__") and not isinstance(value, (type, types.ModuleType)):
+        rebind(vars(value), old, new, seen)
+    return value
+
+
+_OPAQUE = (str, bytes, int, float, complex, bool, type(None), types.FunctionType)
 
 
 def model_settings(model_class: type) -> tuple[str, ...] | None:
