@@ -38,13 +38,16 @@ measure takes over the old one's model state and the samples it held
 (:meth:`FusionMeasure.code_change`): a model with its own ``code_change(old_version,
 old_model)`` converts the old model's state itself; otherwise, when the model class keeps
 its name, the old model's attributes are carried over, with the old model's methods held
-in them (a filter's ``f`` and ``h``) bound to the new model (:func:`rebind`).
+in them (a filter's ``f`` and ``h``) bound to the new model and the objects of the reloaded
+classes among them given their new class (:func:`rebind`, :func:`upgrade`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import dataclasses
+import enum
 import heapq
 import inspect
 import json
@@ -120,10 +123,11 @@ def adopt_model(new: Any, old: Any) -> bool:
 
 def rebind(value: Any, old: Any, new: Any, seen: set[int] | None = None) -> Any:
     """``value`` with every method bound to ``old`` found in it (in dicts, lists, tuples,
-    deques and the attributes of plain objects, in place where they are mutable) replaced by
-    ``new``'s method of that name. A model's filter keeps the model's own ``f`` and ``h``
-    (bound methods): carried over as they are, they would go on running the old code on
-    the old instance after a hot reload."""
+    deques and the attributes of objects, in place where they are mutable, the objects of
+    :data:`_FOREIGN` libraries left alone) replaced by ``new``'s method of that name, and
+    every module-level function its module now names by another, by that one. A
+    model's filter keeps the model's own ``f`` and ``h`` (bound methods): carried over as
+    they are, they would go on running the old code on the old instance after a reload."""
     seen = set() if seen is None else seen
     if isinstance(value, types.MethodType):
         if value.__self__ is old:
@@ -131,25 +135,51 @@ def rebind(value: Any, old: Any, new: Any, seen: set[int] | None = None) -> Any:
         if value.__self__ is type(old):  # a class method
             return getattr(type(new), value.__func__.__name__, value)
         return value
+    if isinstance(value, types.FunctionType):  # a module's function, perhaps loaded anew
+        module = sys.modules.get(value.__module__)
+        if module is None or value.__globals__ is vars(module):
+            return value  # its module was not loaded anew
+        now = _named(value)
+        return now if isinstance(now, types.FunctionType) else value
     if id(value) in seen or isinstance(value, _OPAQUE):
+        return value
+    if type(value).__module__.partition(".")[0] in _FOREIGN:
         return value
     seen.add(id(value))
     if isinstance(value, dict):
-        for k, v in value.items():
-            value[k] = rebind(v, old, new, seen)
+        for k, v in list(value.items()):
+            if (w := rebind(v, old, new, seen)) is not v:
+                value[k] = w
     elif isinstance(value, (list, deque)):
-        for i, v in enumerate(value):
-            value[i] = rebind(v, old, new, seen)
+        for i, v in enumerate(list(value)):
+            if (w := rebind(v, old, new, seen)) is not v:
+                value[i] = w
     elif isinstance(value, tuple):
         items = [rebind(v, old, new, seen) for v in value]
         if any(a is not b for a, b in zip(items, value, strict=True)):
             return type(value)(items) if type(value) is tuple else type(value)(*items)
     elif hasattr(value, "__dict__") and not isinstance(value, (type, types.ModuleType)):
+        upgrade(value)
         rebind(vars(value), old, new, seen)
     return value
 
 
+def upgrade(obj: object) -> None:
+    """Give ``obj`` the class its module's name gives now, if a hot reload loaded that
+    class anew (a part of the old model: its settings, a filter of the model's own code), so
+    the new code runs on it and it pickles; left as it is where Python refuses the change
+    (another memory layout) and for enum members (compared by identity)."""
+    now = _named(type(obj))
+    if not isinstance(now, type) or now is type(obj) or isinstance(obj, enum.Enum):
+        return
+    with contextlib.suppress(TypeError):
+        object.__setattr__(obj, "__class__", now)  # past a frozen dataclass's __setattr__
+
+
 _OPAQUE = (str, bytes, int, float, complex, bool, type(None), types.FunctionType)
+_FOREIGN = frozenset({"numpy", "numba", "llvmlite"})
+"""Libraries whose objects :func:`rebind` does not look into (a compiled kernel's
+dispatcher holds the compiler's state, and dicts that refuse a key set twice)."""
 
 
 def model_settings(model_class: type) -> tuple[str, ...] | None:
@@ -645,11 +675,16 @@ def superseded(obj: object) -> bool:
     loaded the module anew): pickle refuses such an object, and the measure holding it is
     about to be replaced by the new code's, so its checkpoint is skipped, not given up."""
     cls = type(obj)
-    module = sys.modules.get(cls.__module__)
-    found: Any = module
-    for part in cls.__qualname__.split("."):
+    return sys.modules.get(cls.__module__) is not None and _named(cls) is not cls
+
+
+def _named(thing: Any) -> Any:
+    """What the module and qualified name of a class or function ``thing`` give now (None:
+    nothing, as for a lambda or a local function)."""
+    found: Any = sys.modules.get(thing.__module__)
+    for part in thing.__qualname__.split("."):
         found = getattr(found, part, None)
-    return module is not None and found is not cls
+    return found
 
 
 def spec_models(spec: ClusterSpec) -> dict[str, type[FusionMeasure]]:

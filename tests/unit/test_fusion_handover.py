@@ -13,18 +13,32 @@ import pytest
 
 from hera.fusion import adopt_model, superseded
 
+NAME = "superseded_probe"
+
 
 @pytest.fixture
 def module():
-    mod = types.ModuleType("superseded_probe")
-    sys.modules[mod.__name__] = mod
-    yield mod
-    del sys.modules[mod.__name__]
+    """The probe module's name in ``sys.modules``; each :func:`_define` loads it anew."""
+    yield NAME
+    sys.modules.pop(NAME, None)
 
 
 MODEL = """
 import collections
+import dataclasses
 import types  # its SimpleNamespace stands for a filter of hera.estimation (never reloaded)
+
+def _g(x):
+    return {code} * x
+
+
+@dataclasses.dataclass(frozen=True)
+class Part:
+    gain: float = 1.0
+
+    def version(self):
+        return {code}
+
 
 class Model:
     code = {code}
@@ -39,6 +53,8 @@ class Model:
         self.looped = self.filter  # the same object twice: visited once
         self.filter.back = self.filter  # a cycle
         self.kind = self.make
+        self.parts = [Part()]
+        self.filter.g = _g  # a module function, as a filter's f may be
 
     def _f(self, x):
         return (self.code, x)
@@ -52,11 +68,12 @@ class Model:
 """
 
 
-def _define(mod: types.ModuleType, code: int = 1) -> type:
-    code = MODEL.format(code=code)
-    exec(compile(code, mod.__name__, "exec"), mod.__dict__)
-    for cls in (mod.Model, mod.Model.Inner):
-        cls.__module__ = mod.__name__
+def _define(name: str, code: int = 1) -> type:
+    """Load the probe module (anew, as ``hera reload`` does: a new module object in
+    ``sys.modules``) with ``code`` in its functions' results; its Model class."""
+    mod = types.ModuleType(name)
+    sys.modules[name] = mod
+    exec(compile(MODEL.format(code=code), name, "exec"), mod.__dict__)
     return mod.Model
 
 
@@ -69,7 +86,7 @@ def test_an_object_of_a_reloaded_class_is_superseded_and_pickle_refuses_it(modul
     assert superseded(model) and superseded(inner)
     with pytest.raises(pickle.PicklingError, match="not the same object"):
         pickle.dumps(model)
-    assert not superseded(module.Model())
+    assert not superseded(sys.modules[module].Model())
 
 
 def test_a_lambda_in_a_model_is_not_mistaken_for_a_reload(module):
@@ -91,6 +108,28 @@ def test_the_old_models_methods_held_in_its_state_are_bound_to_the_new_model(mod
     assert new.callbacks["f"][0].__self__ is new and new.callbacks["pair"][0].__self__ is new
     assert new.callbacks["pair"][1] == 1.0 and new.queue[0].__self__ is new
     assert new.kind() == 2  # a class method of the new class
-    pickle.dumps(new)  # nothing of the old class is left in it
+    now = sys.modules[module]
+    assert type(new.parts[0]) is now.Part and new.parts[0].version() == 2  # upgraded
+    assert new.filter.g is now._g and new.filter.g(3) == 6
+    pickle.dumps(new)  # nothing of the old code is left in it
     with pytest.raises(pickle.PicklingError):
         pickle.dumps(old)
+
+
+class SetOnce(dict):
+    """A dict that refuses a key set twice (as numba's dispatchers keep theirs)."""
+
+    def __setitem__(self, key, value):
+        if key in self:
+            raise AssertionError(f"key already in dictionary: {key!r}")
+        super().__setitem__(key, value)
+
+
+def test_what_holds_no_old_method_is_not_written_to(module):
+    old = _define(module)()
+    old.table = SetOnce(a=1, b=[2.0])
+    with pytest.raises(AssertionError, match="already in dictionary"):
+        old.table["a"] = 1
+    new = _define(module, code=2)()
+    assert adopt_model(new, old)  # walked, never written: nothing in it to rebind
+    assert new.table == {"a": 1, "b": [2.0]} and new.filter.f.__self__ is new
