@@ -39,28 +39,25 @@ measure takes over the old one's model state and the samples it held
 old_model)`` converts the old model's state itself; otherwise, when the model class keeps
 its name, the old model's attributes are carried over, with the old model's methods held
 in them (a filter's ``f`` and ``h``) bound to the new model and the objects of the reloaded
-classes among them given their new class (:func:`rebind`, :func:`upgrade`).
+classes among them given their new class (:mod:`hera.handover`).
 """
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import dataclasses
-import enum
 import heapq
 import inspect
 import json
-import sys
 import threading
 import time
-import types
 from collections import deque
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 from hera import checkpoints
+from hera.handover import rebind, superseded
 from hera.measure import Measure, MeasureContext, Reading
 from hera.recordings import LiveStart, read_start, recorded_time, start_marker, write_start
 from hera.schema import TABLE, Setting, Table, choice, did_you_mean, number
@@ -119,67 +116,6 @@ def adopt_model(new: Any, old: Any) -> bool:
         rebind(vars(new), old, new)
         return True
     return False
-
-
-def rebind(value: Any, old: Any, new: Any, seen: set[int] | None = None) -> Any:
-    """``value`` with every method bound to ``old`` found in it (in dicts, lists, tuples,
-    deques and the attributes of objects, in place where they are mutable, the objects of
-    :data:`_FOREIGN` libraries left alone) replaced by ``new``'s method of that name, and
-    every module-level function its module now names by another, by that one. A
-    model's filter keeps the model's own ``f`` and ``h`` (bound methods): carried over as
-    they are, they would go on running the old code on the old instance after a reload."""
-    seen = set() if seen is None else seen
-    if isinstance(value, types.MethodType):
-        if value.__self__ is old:
-            return getattr(new, value.__func__.__name__, value)
-        if value.__self__ is type(old):  # a class method
-            return getattr(type(new), value.__func__.__name__, value)
-        return value
-    if isinstance(value, types.FunctionType):  # a module's function, perhaps loaded anew
-        module = sys.modules.get(value.__module__)
-        if module is None or value.__globals__ is vars(module):
-            return value  # its module was not loaded anew
-        now = _named(value)
-        return now if isinstance(now, types.FunctionType) else value
-    if id(value) in seen or isinstance(value, _OPAQUE):
-        return value
-    if type(value).__module__.partition(".")[0] in _FOREIGN:
-        return value
-    seen.add(id(value))
-    if isinstance(value, dict):
-        for k, v in list(value.items()):
-            if (w := rebind(v, old, new, seen)) is not v:
-                value[k] = w
-    elif isinstance(value, (list, deque)):
-        for i, v in enumerate(list(value)):
-            if (w := rebind(v, old, new, seen)) is not v:
-                value[i] = w
-    elif isinstance(value, tuple):
-        items = [rebind(v, old, new, seen) for v in value]
-        if any(a is not b for a, b in zip(items, value, strict=True)):
-            return type(value)(items) if type(value) is tuple else type(value)(*items)
-    elif hasattr(value, "__dict__") and not isinstance(value, (type, types.ModuleType)):
-        upgrade(value)
-        rebind(vars(value), old, new, seen)
-    return value
-
-
-def upgrade(obj: object) -> None:
-    """Give ``obj`` the class its module's name gives now, if a hot reload loaded that
-    class anew (a part of the old model: its settings, a filter of the model's own code), so
-    the new code runs on it and it pickles; left as it is where Python refuses the change
-    (another memory layout) and for enum members (compared by identity)."""
-    now = _named(type(obj))
-    if not isinstance(now, type) or now is type(obj) or isinstance(obj, enum.Enum):
-        return
-    with contextlib.suppress(TypeError):
-        object.__setattr__(obj, "__class__", now)  # past a frozen dataclass's __setattr__
-
-
-_OPAQUE = (str, bytes, int, float, complex, bool, type(None), types.FunctionType)
-_FOREIGN = frozenset({"numpy", "numba", "llvmlite"})
-"""Libraries whose objects :func:`rebind` does not look into (a compiled kernel's
-dispatcher holds the compiler's state, and dicts that refuse a key set twice)."""
 
 
 def model_settings(model_class: type) -> tuple[str, ...] | None:
@@ -668,23 +604,6 @@ class FusionMeasure(Measure):
         self._write_marker(force=True)
         if self._inbox is not None:
             self._inbox.close()
-
-
-def superseded(obj: object) -> bool:
-    """True if ``obj``'s class is no longer what its module's name gives (``hera reload``
-    loaded the module anew): pickle refuses such an object, and the measure holding it is
-    about to be replaced by the new code's, so its checkpoint is skipped, not given up."""
-    cls = type(obj)
-    return sys.modules.get(cls.__module__) is not None and _named(cls) is not cls
-
-
-def _named(thing: Any) -> Any:
-    """What the module and qualified name of a class or function ``thing`` give now (None:
-    nothing, as for a lambda or a local function)."""
-    found: Any = sys.modules.get(thing.__module__)
-    for part in thing.__qualname__.split("."):
-        found = getattr(found, part, None)
-    return found
 
 
 def spec_models(spec: ClusterSpec) -> dict[str, type[FusionMeasure]]:

@@ -50,7 +50,7 @@ _runtime: frozenset[str] = frozenset()
 _packages: tuple[str, ...] = ()
 
 
-LAZY_RUNTIME = ("hera.estimation", "hera.fusion", "numpy", "numba")
+LAZY_RUNTIME = ("hera.estimation", "hera.fusion", "hera.handover", "numpy", "numba")
 """Packages of the runtime that a node loads only when a measure needs them (a node that
 runs no filter never loads numpy: about 15 MB): theirs too, loaded or not."""
 

@@ -11,7 +11,8 @@ import types
 
 import pytest
 
-from hera.fusion import adopt_model, superseded
+from hera.fusion import adopt_model
+from hera.handover import superseded
 
 NAME = "superseded_probe"
 
