@@ -1,6 +1,7 @@
 """The benchmark CLI runs and prints its table (timings are never asserted)."""
 
 import gc
+import re
 import sys
 
 import numpy as np
@@ -14,6 +15,10 @@ def test_bench_runs_tiny(capsys):
     assert "filterpy us" in out and "ratio" in out
     for kind in ("KF", "EKF", "UKF"):
         assert sum(line.startswith(kind + " ") for line in out.splitlines()) == 9
+    # the memory a node pays, read off a fresh process that ran every filter
+    loaded = re.search(r"a process that runs these filters (\d+) MB RSS; this one (\d+) MB", out)
+    assert loaded, out
+    assert 0 < int(loaded[1]) <= int(loaded[2]) + 50, loaded[0]
 
 
 def test_bench_without_filterpy(monkeypatch, capsys):
