@@ -6,7 +6,8 @@ import time
 
 import pytest
 
-from hera.campaign import clockmap
+from hera.campaign import clockmap, journal
+from hera.sync import clock as sync_clock
 
 W0 = 1_800_000_000.0
 
@@ -42,3 +43,24 @@ def test_the_writer_samples_both_clocks_and_the_reader_skips_torn_lines(tmp_path
     assert max(offsets) - min(offsets) < 0.05  # read together: one offset, this machine
     assert pairs == sorted(pairs)
     assert clockmap.read_anchors(tmp_path / "none") == []
+
+
+def test_a_pair_read_across_a_deschedule_is_not_kept():
+    """The clocks are read wall, sync, wall: of three tries, the one whose wall reads lie
+    closest wins, so a try the process was descheduled in (5 ms between its wall reads, the
+    sample that once moved a firing by a millisecond) pairs nothing. Wall - sync is -90 s."""
+    # try 1 descheduled (sync read 5 ms late), tries 2 and 3 tight (20 us and 10 us)
+    walls = iter([10.000, 10.005, 10.006, 10.00602, 10.007, 10.00701])
+    syncs = iter([100.005, 100.00601, 100.007005])
+    w, c = journal.now(tries=3, wall=walls.__next__, sync=syncs.__next__)
+    assert (w, c) == (pytest.approx(10.007005), pytest.approx(100.007005))
+    assert w - c == pytest.approx(-90.0, abs=1e-6)
+    # one try alone keeps the descheduled pair: 2.5 ms off
+    walls, syncs = iter([10.000, 10.005]), iter([100.005])
+    w, c = journal.now(tries=1, wall=walls.__next__, sync=syncs.__next__)
+    assert w - c == pytest.approx(-90.0025, abs=1e-6)
+
+
+def test_the_real_clocks_pair_within_a_millisecond():
+    w, c = journal.now()
+    assert abs((time.time() - sync_clock.now()) - (w - c)) < 1e-3
