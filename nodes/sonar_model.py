@@ -28,7 +28,7 @@ class SonarModel:
     """Parameters of the sonar model."""
 
     # White range noise std before the 1-inch rounding (m): with the rounding, 1.24 cm RMS and
-    # 95 % of readings within 2.4 cm, the data sheet's "about 2.5 cm accuracy".
+    # 95 % of readings within 2.4 cm: REFERENCE.md's "about 2.5 cm accuracy".
     noise_m: float = 0.01
     half_angle_deg: float = 20.0  # beam half-angle
     min_in: int = 6  # data sheet: objects closer than 6 in range as 6 in

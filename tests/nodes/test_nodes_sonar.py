@@ -48,7 +48,7 @@ def test_readings_are_whole_inches_of_the_nearest_surface() -> None:
     assert spread == pytest.approx(math.sqrt(0.02**2 + INCH**2 / 12), rel=0.1)
 
 
-def test_default_accuracy_is_the_data_sheets_about_2_5_cm() -> None:
+def test_default_accuracy_is_the_references_about_2_5_cm() -> None:
     """REFERENCE.md: the MaxSonar reads "about 2.5 cm accuracy". The default model (white
     noise before the 1-inch rounding) puts 95 % of its readings within that of the truth,
     not much closer: issue 11's "MaxSonar's noise (2.5 cm)" is this model."""
