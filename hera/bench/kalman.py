@@ -19,11 +19,14 @@ from __future__ import annotations
 import argparse
 import gc
 import statistics
+import subprocess
 import sys
 import time
 from collections.abc import Callable
 
 import numpy as np
+
+from hera.nodestatus import rss_mb
 
 TARGET = 3.0
 TARGETS = {"KF": TARGET, "EKF": 4.0, "UKF": TARGET}  # issue 21: >= 3x everywhere, EKF >= 4x
@@ -288,18 +291,6 @@ def format_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def rss_mb() -> float:
-    """Resident set size of this process in MB (Linux /proc; 0.0 where unavailable)."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmRSS:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return 0.0
-
-
 def run_each_filter_once() -> None:
     """Build the KF, EKF and UKF of the smallest case and run a few steps of each: what a
     node that runs filters has loaded (the probe of ``loaded_rss_mb``)."""
@@ -314,8 +305,6 @@ def loaded_rss_mb(timeout: float = 120.0) -> float | None:
     """RSS in MB of a fresh Python process that loads the kernels from the cache and runs
     every filter: what a node pays for them. This process's own figure is larger when it
     has just compiled them (the compiler's memory stays). None if the probe failed."""
-    import subprocess
-
     probe = "from hera.bench import kalman as k; k.run_each_filter_once(); print(k.rss_mb())"
     try:
         out = subprocess.run(
@@ -361,7 +350,7 @@ def main(argv: list[str] | None = None) -> int:
     print(
         "memory: a process that runs these filters "
         + (f"{loaded:.0f} MB RSS" if loaded is not None else "(probe failed)")
-        + f"; this one {rss_mb():.0f} MB (more if it compiled the kernels)"
+        + f"; this one {rss_mb() or 0:.0f} MB (more if it compiled the kernels)"
     )
     rows = run(steps, kinds, [2, 4, 9], [1, 2, 3])
     print(
