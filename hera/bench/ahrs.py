@@ -351,7 +351,7 @@ def node_cpu(backend: str, use: str | None, seconds: float, settle: float = 12.0
         with log.open("wb") as out:
             proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=out)
         try:
-            # a fresh install compiles its numba kernels on the first `hera up` (30-60 s,
+            # a fresh install compiles its numba kernels on the first `hera up` (20-50 s,
             # more on a busy machine) before any node starts
             deadline = time.monotonic() + 240.0
             pid = None

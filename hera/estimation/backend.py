@@ -8,14 +8,14 @@ the platforms it publishes wheels for; without it everything runs on the numpy p
 the same results (to roundoff) and the same errors.
 
 Compiled once per machine: the first process that selects numba compiles every kernel
-(30-60 s on a 2-core machine), printing one line to stderr before and one after, and
+(20-50 s on a 2-core machine), printing one line to stderr before and one after, and
 numba stores the machine code in :func:`cache_dir` (a per-user directory, so a read-only
 site-packages is fine); a marker file there records the complete set, and later processes
 load the kernels from the cache in well under a second. Processes that start at the same
 time compile once between them (a lock file in the cache directory). The compile is shared
 between up to ``HERA_COMPILE_JOBS`` processes (default: the CPU count, at most 4): helper
-processes compile their share into the cache and this one loads it from there (68 s in one
-process, 36 s in two, measured on a 2-core machine); a helper that fails leaves its share
+processes compile their share into the cache and this one loads it from there (45 s in one
+process, 21-24 s in two, measured on a 2-vCPU machine); a helper that fails leaves its share
 to this process. ``warmup()`` loads every kernel up front and returns the time it took.
 """
 
@@ -50,23 +50,27 @@ CACHE_ENV = "HERA_CACHE_DIR"
 JOBS_ENV = "HERA_COMPILE_JOBS"
 MAX_JOBS = 4
 HELPER_TIMEOUT_S = 900.0
-# Seconds each kernel took to compile alone (2-core AMD EPYC, numba 0.6x): only used to share
-# the compile fairly between processes (longest first, each to the least loaded); a kernel
-# missing here counts as 1 s.
+# Seconds each kernel takes to compile (2-vCPU Intel Xeon, numba 0.68, one process, in this
+# order; lin_update1's after kf_step's, which compiles the helper they share): only used to
+# share the compile fairly between processes (longest first, each to the least loaded); a
+# kernel missing here counts as 1 s.
 COMPILE_SECONDS = {
-    "kf_step": 20.5,
-    "ekf_step": 18.0,
-    "lin_update1": 15.9,
-    "lin_update": 5.7,
-    "ukf_update": 2.1,
-    "ukf_update_dev": 2.1,
-    "kf_predict": 1.4,
-    "ekf_predict": 1.1,
-    "kf_predict_u": 0.6,
-    "ukf_predict": 0.4,
-    "ukf_sigmas": 0.2,
-    "ukf_predict_dev": 0.2,
+    "ekf_step": 17.8,
+    "kf_step": 16.6,
+    "lin_update1": 5.8,
+    "lin_update": 7.0,
+    "ukf_update_dev": 3.4,
+    "ukf_update": 3.0,
+    "kf_predict": 1.9,
+    "ekf_predict": 1.5,
+    "kf_predict_u": 1.0,
+    "ukf_predict": 0.7,
+    "ukf_sigmas": 0.4,
+    "ukf_predict_dev": 0.4,
 }
+# Kernels that call one compiled helper with the same argument types (``_update_rows``):
+# compiled in one process, the helper is compiled once for them (13 s less here).
+TOGETHER = (("kf_step", "lin_update1"),)
 BACKENDS = ("auto", "numba", "numpy")
 
 _UNRESOLVED: Any = object()
@@ -199,7 +203,7 @@ class _Kernels:
         shared = f"in {jobs} processes, " if jobs > 1 else ""
         print(
             f"hera.estimation: compiling {len(names)} numba kernels for this machine, once "
-            f"({shared}30-60 s; cached in {self.cache}) ...",
+            f"({shared}20-50 s; cached in {self.cache}) ...",
             file=sys.stderr,
             flush=True,
         )
@@ -250,16 +254,30 @@ def compile_jobs(count: int) -> int:
 
 
 def shares(names: Sequence[str], jobs: int) -> list[list[str]]:
-    """``names`` split into ``jobs`` shares of about equal compile time: the longest first,
-    each to the share with the least so far (``COMPILE_SECONDS``). Share 0 is the one with
-    the most work, kept by the calling process."""
+    """``names`` split into ``jobs`` shares of about equal compile time: the longest unit
+    first, each to the share with the least so far (``COMPILE_SECONDS``); a unit is one
+    kernel, or the kernels of a ``TOGETHER`` group, kept in one share. Share 0 is the one
+    with the most work, kept by the calling process."""
+    units: list[list[str]] = []
+    left = list(names)
+    for group in TOGETHER:
+        unit = [n for n in left if n in group]
+        if unit:
+            units.append(unit)
+            left = [n for n in left if n not in group]
+    units += [[n] for n in left]
     out: list[list[str]] = [[] for _ in range(jobs)]
     load = [0.0] * jobs
-    for name in sorted(names, key=lambda n: -COMPILE_SECONDS.get(n, 1.0)):
+    for unit in sorted(units, key=lambda u: -unit_seconds(u)):
         i = load.index(min(load))
-        out[i].append(name)
-        load[i] += COMPILE_SECONDS.get(name, 1.0)
+        out[i] += unit
+        load[i] += unit_seconds(unit)
     return [s for _, s in sorted(zip(load, out, strict=True), key=lambda p: -p[0]) if s]
+
+
+def unit_seconds(names: Sequence[str]) -> float:
+    """The compile time of ``names`` in one process, by ``COMPILE_SECONDS``."""
+    return sum(COMPILE_SECONDS.get(n, 1.0) for n in names)
 
 
 def compile_shared(

@@ -217,7 +217,7 @@ def test_the_install_compiles_its_kernels_once_into_a_user_cache(installed, tmp_
         line.startswith("hera.estimation: compiling ") and str(where) in line for line in lines
     ), bench.stderr[-2000:]
     jobs = min(os.cpu_count() or 1, 4)  # the compile shared between processes
-    shared = f"(in {jobs} processes, " if jobs > 1 else "(30-60 s"
+    shared = f"(in {jobs} processes, " if jobs > 1 else "(20-50 s"
     assert any(line.startswith("hera.estimation: compiling ") and shared in line for line in lines)
     assert any(
         line.startswith("hera.estimation: numba kernels compiled in ") and "cached in" in line
