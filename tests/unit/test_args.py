@@ -2,6 +2,7 @@ import threading
 import time
 
 import pytest
+import zenoh
 from harness import wait_for
 
 from hera.args import ArgsStore
@@ -91,7 +92,17 @@ def test_a_write_made_before_the_link_existed_reaches_the_peer_when_it_comes_up(
         if hooked:
             wait_for(lambda: a2.get("calib/n1/imu") == [0.1, 0.2], 5, "the pull on peer-up")
         else:
-            a1.put("other", 1)  # a write after the link exists does arrive...
+            # n1 seen up by n2 says nothing of the other direction: n2's subscription may
+            # reach n1 later (a put before it reaches nobody; a CI failure). A write made
+            # once n1 knows of it (a remote match on n1) does arrive...
+            probe = s1.declare_publisher(
+                keys.args("other"), allowed_destination=zenoh.Locality.REMOTE
+            )
+            try:
+                wait_for(lambda: probe.matching_status.matching, 5, "n1 to see n2's subscriber")
+            finally:
+                probe.undeclare()
+            a1.put("other", 1)
             wait_for(lambda: a2.get("other") == 1, 5, "a later write")
             assert a2.get("calib/n1/imu") is None  # ...the earlier one never does
     finally:

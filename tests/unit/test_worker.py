@@ -72,16 +72,24 @@ def test_missed_deadlines_are_skipped_and_counted_not_burst():
                 time.sleep(0.055)  # misses about 5 deadlines of 10 ms
             return [began]
 
-    w, pub = run_worker(Stall, 0.01, 10)
-    times = [r.values[0] for r in pub]
-    assert w.stats.overruns >= 4
-    # after the stall every step is back on the grid start + k * period, one step per slot
-    slots = [(t - times[0]) / 0.01 for t in times]
-    # (step 2 starts late, whenever the stalled step returns: it realigns the grid)
-    assert all(abs(s - round(s)) < 0.35 for s in slots[3:])
-    gaps = [b - a for a, b in zip(times, times[1:], strict=False)]
-    assert min(gaps) > 0.003  # no burst: the missed deadlines are not run back to back
-    assert w.stats.jitter_ms()["max"] < 50
+    period = 0.01
+    w, pub = run_worker(Stall, period, 10)
+    began = [r.values[0] for r in pub]
+    late = list(w.stats.lateness)
+    assert len(began) == len(late) == 10
+    # Each step's deadline as the worker set it: when the step began less how late it was.
+    # A wake-up delay of the machine is in both and cancels (the steps' start times alone
+    # were a CI failure: one woke 3.5 ms late on a loaded machine).
+    deadlines = [b - d for b, d in zip(began, late, strict=True)]
+    slots = [(t - deadlines[0]) / period for t in deadlines]
+    assert all(abs(s - round(s)) < 0.2 for s in slots)  # every deadline on start + k * period
+    k = [round(s) for s in slots]
+    assert k[:2] == [0, 1]
+    assert k[2] - k[1] >= 5  # the deadlines the stall missed are skipped...
+    assert all(b > a for a, b in zip(k, k[1:], strict=False))  # ...never two steps on one
+    # and every skipped deadline is counted
+    assert w.stats.overruns == sum(b - a - 1 for a, b in zip(k, k[1:], strict=False)) >= 4
+    assert w.stats.jitter_ms()["max"] == max(late) * 1e3
 
 
 def test_none_is_not_published_and_iterations_end_normally():
