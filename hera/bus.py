@@ -130,20 +130,60 @@ def with_overrides(
 
 
 _LOGGING = False
+RUNTIME_ENV = "ZENOH_RUNTIME"  # Zenoh's own: its thread pools' settings, read at first open
+RUNTIME_EXAMPLE = "(app: (worker_threads: 2))"
+
+
+def check_runtime_env() -> None:
+    """ValueError naming ``ZENOH_RUNTIME`` when it is set but cannot be Zenoh's runtime
+    settings (empty, or not one parenthesised list with balanced parentheses): Zenoh would
+    panic on it with a Rust backtrace when the first session opens."""
+    raw = os.environ.get(RUNTIME_ENV)
+    if raw is None:
+        return
+    text, depth = raw.strip(), 0
+    for ch in text:
+        depth += (ch == "(") - (ch == ")")
+        if depth < 0:
+            break
+    if not (text.startswith("(") and text.endswith(")") and depth == 0):
+        raise ValueError(
+            f"environment variable {RUNTIME_ENV}={raw!r} is not Zenoh's runtime settings: "
+            f"unset it, or give settings such as {RUNTIME_EXAMPLE!r}"
+        )
+
+
+def _open(cfg: zenoh.Config) -> zenoh.Session:
+    """``zenoh.open``; a panic of Zenoh's while ``ZENOH_RUNTIME`` is set becomes a
+    ValueError that names it (Zenoh checks that value only here, by panicking)."""
+    try:
+        return zenoh.open(cfg)
+    except BaseException as e:  # pyo3's PanicException derives from BaseException
+        raw = os.environ.get(RUNTIME_ENV)
+        if type(e).__name__ != "PanicException" or raw is None:
+            raise
+        first = (str(e).splitlines() or [""])[0][:200]
+        raise ValueError(
+            f"Zenoh could not start with environment variable {RUNTIME_ENV}={raw!r} "
+            f"({first}): unset it, or give settings such as {RUNTIME_EXAMPLE!r}"
+        ) from None
 
 
 def open_session(config: BusConfig) -> zenoh.Session:
     """Open a Zenoh session; the caller must close it (``with`` or ``try/finally``).
+    ValueError naming ``ZENOH_RUNTIME`` when that variable is not usable (see
+    :func:`check_runtime_env`).
 
     With ``RUST_LOG`` set (e.g. ``RUST_LOG=zenoh=debug``), Zenoh's own log goes to stderr
     (the node's log file): what its links and routing do, for debugging."""
     global _LOGGING
+    check_runtime_env()
     if not _LOGGING and os.environ.get("RUST_LOG"):
         zenoh.init_log_from_env_or("error")
         _LOGGING = True
     cfg = config.to_zenoh()
     if config.dictionary is None:
-        return zenoh.open(cfg)
+        return _open(cfg)
     # Zenoh reads the dictionary when the session opens (verified by a test): it lives in a
     # file only this user can read, removed as soon as the session is open
     with tempfile.TemporaryDirectory(prefix="hera-auth-") as folder:
@@ -152,7 +192,7 @@ def open_session(config: BusConfig) -> zenoh.Session:
         with os.fdopen(fd, "w") as f:
             f.write(config.dictionary)
         cfg.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(path))
-        return zenoh.open(cfg)
+        return _open(cfg)
 
 
 def query_all(

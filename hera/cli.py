@@ -309,11 +309,18 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+STARTERS = ("up", "node", "router", "campaign")  # the commands that start processes
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``hera`` console script; returns the exit code (2 for a bad
     command line, spec or input, with one line per problem on stderr)."""
     args = _parser().parse_args(argv)
     try:
+        if args.cmd in STARTERS:  # before a run directory or a process is made
+            from hera.bus import check_runtime_env
+
+            check_runtime_env()
         return _dispatch(args, argv)
     except (LookupError, ValueError, OSError, ImportError) as e:
         for line in str(e).strip().splitlines() or [type(e).__name__]:

@@ -15,10 +15,12 @@ HEAD = '[cluster]\nname = "e"\n[[nodes]]\nname = "a"\n'
 TRAIN_MODEL = '[[nodes.measures]]\nuse = "track_radius"\nargs = { model = { %s } }\n'
 
 
-def hera(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
+def hera(
+    tmp_path: Path, *args: str, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "hera", *args],
-        env=cluster_env(tmp_path),
+        env={**cluster_env(tmp_path), **(env or {})},
         capture_output=True,
         text=True,
         timeout=60,
@@ -111,6 +113,65 @@ def test_a_bad_spec_is_refused_before_anything_starts(tmp_path, command, text, p
         assert line.startswith(f"hera {command}: {spec}: ") and problem in line, line
     assert "Traceback" not in out.stderr
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("command", ["up", "node", "router"])
+@pytest.mark.parametrize("value", ["", "  ", "app: (worker_threads: 2)", "(app: (x: 1)"])
+def test_an_unusable_zenoh_runtime_variable_is_one_sentence_before_anything_starts(
+    tmp_path, command, value
+):
+    """Zenoh reads ZENOH_RUNTIME when the first session opens and panics on a value it
+    cannot parse (a Rust backtrace, a node crash loop): one that cannot be its settings is
+    refused first."""
+    spec = tmp_path / "ok.toml"
+    spec.write_text(HEAD)
+    args = {"up": ["--run-dir", str(tmp_path / "run")], "node": ["--node", "a"]}
+    out = hera(
+        tmp_path,
+        command,
+        str(spec),
+        *args.get(command, ["--name", "r"]),
+        env={"ZENOH_RUNTIME": value},
+    )
+    assert out.returncode == 2, out.stderr
+    assert out.stderr == (
+        f"hera {command}: environment variable ZENOH_RUNTIME={value!r} is not Zenoh's runtime "
+        "settings: unset it, or give settings such as '(app: (worker_threads: 2))'\n"
+    )
+    assert not (tmp_path / "run").exists()
+
+
+def test_zenohs_panic_on_its_runtime_variable_names_the_variable(tmp_path):
+    """A value shaped like settings but not Zenoh's: Zenoh's panic is turned into one
+    sentence naming the variable (its own backtrace goes to stderr before it), exit 2."""
+    spec = tmp_path / "ok.toml"
+    spec.write_text(HEAD)
+    value = "(nonsense: (x: 1))"
+    out = hera(
+        tmp_path,
+        "up",
+        str(spec),
+        "--run-dir",
+        str(tmp_path / "run"),
+        env={"ZENOH_RUNTIME": value, "RUST_BACKTRACE": "0"},
+    )
+    assert out.returncode == 2, out.stderr
+    last = out.stderr.strip().splitlines()[-1]
+    assert last.startswith(
+        f"hera up: Zenoh could not start with environment variable ZENOH_RUNTIME={value!r} ("
+    ), last
+    assert "NoSuchStructField" in last and "Traceback" not in out.stderr
+    out = hera(
+        tmp_path,
+        "up",
+        str(spec),
+        "--run-dir",
+        str(tmp_path / "run2"),
+        "--duration",
+        "1",
+        env={"ZENOH_RUNTIME": "(app: (worker_threads: 1))"},
+    )
+    assert out.returncode == 0, out.stderr  # a value Zenoh takes runs
 
 
 def test_a_binary_or_missing_spec_is_one_sentence(tmp_path):
