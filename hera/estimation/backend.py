@@ -69,7 +69,8 @@ COMPILE_SECONDS = {
     "ukf_predict_dev": 0.4,
 }
 # Kernels that call one compiled helper with the same argument types (``_update_rows``):
-# compiled in one process, the helper is compiled once for them (13 s less here).
+# compiled in one process, the helper is compiled once for them (lin_update1 then takes
+# 5.8 s instead of 12.9 s alone).
 TOGETHER = (("kf_step", "lin_update1"),)
 BACKENDS = ("auto", "numba", "numpy")
 

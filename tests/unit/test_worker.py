@@ -79,7 +79,7 @@ def test_missed_deadlines_are_skipped_and_counted_not_burst():
     assert len(began) == len(late) == 10
     # Each step's deadline as the worker set it: when the step began less how late it was.
     # A wake-up delay of the machine is in both and cancels (the steps' start times alone
-    # were a CI failure: one woke 3.5 ms late on a loaded machine).
+    # were a CI failure: one was 3.5 ms or more off the grid on a loaded machine).
     deadlines = [b - d for b, d in zip(began, late, strict=True)]
     slots = [(t - deadlines[0]) / period for t in deadlines]
     assert all(abs(s - round(s)) < 0.2 for s in slots)  # every deadline on start + k * period
