@@ -58,6 +58,8 @@ class DataPath:
     """Publishes this node's samples and stores everyone's (see module docstring)."""
 
     TRANSIT_WINDOW = 4096
+    SOURCES_CACHED = 4096
+    """Parsed data keys kept (key -> (name, node)); past that many, keys are parsed anew."""
 
     def __init__(
         self,
@@ -82,6 +84,7 @@ class DataPath:
         self.previous_start: float | None = None
         """Wall-clock start (epoch s) of the previous incarnation, when known."""
         self._streaks: dict[tuple[str, str], tuple[int, str]] = {}
+        self._sources: dict[str, tuple[str, str]] = {}
         self.rejected: dict[str, int] = {}
         self.last_rejection: str | None = None
         self.transit: dict[str, deque[float]] = {}
@@ -191,7 +194,12 @@ class DataPath:
         """Decode, check and store one sample from the bus."""
         key = str(sample.key_expr)
         try:
-            name, node = self.keys.parse_data(key)
+            source = self._sources.get(key)
+            if source is None:
+                source = self.keys.parse_data(key)
+                if len(self._sources) < self.SOURCES_CACHED:
+                    self._sources[key] = source
+            name, node = source
             msg = wire.decode(sample.payload.to_bytes())
         except wire.WireError as e:
             self.reject("oversized" if "too large" in str(e) else "malformed", f"{key}: {e}")
@@ -199,8 +207,7 @@ class DataPath:
         except ValueError as e:
             self.reject("bad_key", str(e))
             return
-        why = self.store.offer_why(name, node, msg)
-        source = (name, node)
+        why, held = self.store.offer_sample(name, node, msg)
         tracked = self.declared is not None and source in self.declared
         if why is not None:
             if why != "stale":
@@ -211,7 +218,6 @@ class DataPath:
             return
         if tracked and source in self._streaks:
             del self._streaks[source]
-        held = self.store.get_one(name, node)
         # publish-to-store transit on the wall clock (exact on one host; needs NTP across)
         window = self.transit.get(node)
         if window is None:

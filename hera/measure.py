@@ -104,17 +104,20 @@ class Reading:
     t: float | None = None
 
 
-def readings_of(result: Sequence[float] | Reading | list[Reading] | None) -> list[Reading]:
+def readings_of(
+    result: Sequence[float] | Reading | list[Reading] | None, t: float | None = None
+) -> list[Reading]:
     """The readings one step of :meth:`Measure.measure` returned, in order: none for None
     or an empty list, each of a list of :class:`Reading`, else the one (a plain sequence of
-    numbers is ``Reading(values)``; a reading's ``t`` may be None: "when the step began")."""
+    numbers is ``Reading(values, t)``; a reading's ``t`` may be None: "when the step
+    began")."""
     if result is None:
         return []
     if isinstance(result, Reading):
         return [result]
     if isinstance(result, list) and (not result or isinstance(result[0], Reading)):
         return list(result)
-    return [Reading(result)]
+    return [Reading(result, t)]
 
 
 class MeasureSpecError(ValueError):

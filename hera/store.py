@@ -60,6 +60,7 @@ class Store:
         self._cond = threading.Condition()
         self._version = 0
         self._listeners: tuple = ()
+        self._waiting = 0  # threads in wait_newer (guarded by _cond)
         self._nodes = None if nodes is None else frozenset(nodes)
         self._max_names = max_names_per_node
         self._names_of: dict[str, int] = {}
@@ -78,6 +79,13 @@ class Store:
         """Store ``msg`` for (name, node) if it is newer; None when kept, else the reason
         it was refused: ``stale`` (not newer within its incarnation), ``unknown_node`` (not
         a node of the cluster) or ``too_many_names`` (its node's quota of names is full)."""
+        return self.offer_sample(name, node, msg, arrival)[0]
+
+    def offer_sample(
+        self, name: str, node: str, msg: Message, arrival: float | None = None
+    ) -> tuple[str | None, Sample]:
+        """:meth:`offer_why` that also returns the :class:`Sample` made of ``msg``, the one
+        now held when it was kept (a later read may find a newer one)."""
         mono = time.monotonic() if arrival is None else arrival
         sample = Sample(
             name, node, msg.seq, msg.t, mono, wallclock.now(), msg.values, msg.grant, msg.inc
@@ -89,7 +97,7 @@ class Store:
                 why = self._admit(node)
                 if why is not None:
                     self.refused[why] = self.refused.get(why, 0) + 1
-                    return why
+                    return why, sample
                 if per_name is None:
                     per_name = self._data[name] = {}
                 self._names_of[node] = self._names_of.get(node, 0) + 1
@@ -97,17 +105,18 @@ class Store:
                 if held.seq >= msg.seq:
                     self.stale += 1
                     self.refused["stale"] = self.refused.get("stale", 0) + 1
-                    return "stale"
+                    return "stale", sample
             else:
                 self.incarnations += 1
             per_name[node] = sample
             self.accepted += 1
             self._version += 1
-            self._cond.notify_all()
+            if self._waiting:  # notify_all is a Python call layer: only when one waits
+                self._cond.notify_all()
             listeners = self._listeners
         for fn in listeners:
             fn(sample)
-        return None
+        return None, sample
 
     def _admit(self, node: str) -> str | None:
         """Why a new source of ``node`` cannot be taken, or None (lock held)."""
@@ -174,11 +183,12 @@ class Store:
 
     def snapshot(self) -> list[Sample]:
         """Every held sample, sorted by (name, node)."""
+        return sorted(self.samples(), key=lambda s: (s.name, s.node))
+
+    def samples(self) -> list[Sample]:
+        """Every held sample, in no particular order (:meth:`snapshot` without its sort)."""
         with self._cond:
-            return sorted(
-                (s for per in self._data.values() for s in per.values()),
-                key=lambda s: (s.name, s.node),
-            )
+            return [s for per in self._data.values() for s in per.values()]
 
     @property
     def version(self) -> int:
@@ -190,7 +200,11 @@ class Store:
         """Block until a sample is accepted after ``version`` or ``timeout`` s pass;
         return the current version."""
         with self._cond:
-            self._cond.wait_for(lambda: self._version > version, timeout)
+            self._waiting += 1
+            try:
+                self._cond.wait_for(lambda: self._version > version, timeout)
+            finally:
+                self._waiting -= 1
             return self._version
 
     def cursor(self, names: Iterable[str]) -> Cursor:

@@ -325,7 +325,7 @@ class Worker:
         self.stats.steps += 1
         if self.abandoned:
             return
-        batch = readings_of(result)
+        batch = readings_of(result, t_wall)  # a plain sequence: stamped t_wall at once
         if not batch:
             self.stats.empty += 1
             return

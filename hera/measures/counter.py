@@ -52,7 +52,7 @@ class Counter(Measure):
         alive = 0
         seen: dict[tuple[str, str], float] = {}
         fresh = self.fresh_cycles * period
-        for s in self.ctx.store.snapshot():  # one look at the store, not one per name
+        for s in self.ctx.store.samples():  # one look at the store, not one per name
             if not s.name.startswith(self.prefix) or now - s.arrival > fresh:
                 continue
             key = (s.name, s.node)

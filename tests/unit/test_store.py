@@ -1,4 +1,5 @@
 import threading
+import time
 
 from hera.store import Store
 from hera.wire import Message
@@ -32,6 +33,18 @@ def test_get_returns_every_node_and_fresh_filters_by_age_and_time():
     assert s.latest_seq("a", "n3") == 0
 
 
+def test_samples_holds_the_latest_of_each_source_and_snapshot_sorts_them():
+    s = Store()
+    s.offer("b", "n1", msg(1, 1.0, 1.0))
+    s.offer("a", "n2", msg(1, 1.0, 2.0))
+    s.offer("a", "n1", msg(1, 1.0, 3.0))
+    s.offer("a", "n1", msg(2, 1.0, 4.0))
+    held = {(x.name, x.node, x.values) for x in s.samples()}
+    assert held == {("b", "n1", (1.0,)), ("a", "n2", (2.0,)), ("a", "n1", (4.0,))}
+    assert len(s.samples()) == 3
+    assert [(x.name, x.node) for x in s.snapshot()] == [("a", "n1"), ("a", "n2"), ("b", "n1")]
+
+
 def test_cursor_returns_each_sample_once():
     s = Store()
     cur = s.cursor(["a"])
@@ -59,7 +72,11 @@ def test_concurrent_writers_keep_the_highest_seq():
 
 
 def test_wait_newer_wakes_on_accepted_sample():
+    """Woken by the offer, not by its timeout (which returns the same version later): the
+    offer notifies only when a thread waits, so the waiter must be seen waiting."""
     s = Store()
     v = s.version
     threading.Timer(0.05, lambda: s.offer("a", "n", msg(1))).start()
-    assert s.wait_newer(v, timeout=5.0) == v + 1
+    t0 = time.monotonic()
+    assert s.wait_newer(v, timeout=60.0) == v + 1
+    assert time.monotonic() - t0 < 30.0  # not the timeout's 60 s
