@@ -44,7 +44,11 @@ def check_gaps(h: History) -> Verdict:
             unjudged.append(f"{s.name}@{s.node}")
             rows.append({"stream": f"{s.name}@{s.node}", "verdict": "too sparse to judge"})
             continue
-        limit = max(cfg["max_gap_periods"] * b.period, cfg["gap_floor_s"], 1.5 * b.max_gap)
+        # A bursty stream (bilateration: a burst while the train is in both sonars' beams)
+        # may miss one burst, two of its gaps and the burst between them: a noisy pass of
+        # the train gives no fix, and a 10 s baseline may hold one gap only.
+        spread = 3.0 if b.bursty else 1.5
+        limit = max(cfg["max_gap_periods"] * b.period, cfg["gap_floor_s"], spread * b.max_gap)
         worst, at = 0.0, None
         for a, z in quiet:
             g = analysis.longest_gap(s, a, z)

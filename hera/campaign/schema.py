@@ -206,7 +206,12 @@ CHECKS_TABLE = Table(
             8.0,
             "outside faults, a stream's gap may be this many periods ...",
         ),
-        Setting("gap_floor_s", POS, 0.5, "... or this long, or 1.5 x its longest baseline gap"),
+        Setting(
+            "gap_floor_s",
+            POS,
+            0.5,
+            "... or this long, or 1.5 x its longest baseline gap (3 x for a bursty stream)",
+        ),
         Setting("recovery_s", POS, 5.0, "time after a fault before quiet-time checks apply, s"),
         Setting(
             "recover_within_s",
