@@ -51,3 +51,28 @@ def test_bench_scale_quick_runs_behind_a_router_with_mutual_tls(tmp_path):
     assert len(rows) == 1 and rows[0][:4] == ["8", "routers", "grid", "tls"], out.stdout
     delivered = float(rows[0][4])  # a number, not "failed: ..."
     assert delivered > 0.0, out.stdout
+
+
+def test_without_the_tls_extra_bench_bus_measures_the_rest_and_says_what_is_missing(
+    monkeypatch,
+):
+    """An install without cryptography (the README's, without the tls extra) leaves the
+    mutual TLS row out, named with the install that measures it, instead of stopping after
+    a minute of measurements with 'certificates need the cryptography package'."""
+    from hera.bench import bus
+
+    real = bus.importlib.util.find_spec
+    assert bus.measurable_modes() == ["none", "auth", "tls"]  # the test extras have it
+    monkeypatch.setattr(
+        bus.importlib.util,
+        "find_spec",
+        lambda name, *a: None if name == "cryptography" else real(name, *a),
+    )
+    assert bus.measurable_modes() == ["none", "auth"]
+    rows = bus.security_rows({"none": {"p50": 0.2, "p99": 0.4}, "auth": {"p50": 0.3, "p99": 0.5}})
+    shown = {name: value for name, value, _, _ in rows}
+    assert shown == {
+        "1 kHz p50/p99, no security": "0.200 / 0.400 ms",
+        "1 kHz p50/p99, user/password": "0.300 / 0.500 ms (+50 % at p50)",
+        "1 kHz p50/p99, mutual TLS + ACL": "not measured: pip install 'hera-fusion[tls]'",
+    }
