@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib.util
 import os
 import signal
 import statistics
@@ -32,7 +31,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-from hera.bench.security import LABELS, MODES, secure
+from hera.bench.security import LABELS, MODES, TLS_HINT, measurable_modes, secure
 from hera.bus import BusConfig, open_session
 from hera.client import ClusterClient
 from hera.launcher import node_command
@@ -119,16 +118,6 @@ def latency(period: float, seconds: float, security: str = "auth") -> dict[str, 
             time.sleep(0.1)
         time.sleep(seconds)
         return c.query("b", "status")["b"]["transit_ms"]["a"]
-
-
-TLS_HINT = "pip install 'hera-fusion[tls]'"
-
-
-def measurable_modes() -> list[str]:
-    """The security modes this install can run: ``tls`` needs the ``tls`` extra
-    (cryptography, to make the certificates), the others nothing more."""
-    has_tls = importlib.util.find_spec("cryptography") is not None
-    return [m for m in MODES if m != "tls" or has_tls]
 
 
 def security_cost(

@@ -40,7 +40,7 @@ from typing import Any
 import zenoh
 
 from hera.bench.latency import LatencyHistogram
-from hera.bench.security import modes, secure
+from hera.bench.security import TLS_HINT, measurable_modes, modes, secure
 from hera.client import ClusterClient
 from hera.launcher import node_command
 from hera.measure import Measure, MeasureContext
@@ -257,6 +257,9 @@ def main(argv: list[str]) -> int:
         securities = modes(args.security, "--security")
     except ValueError as e:
         print(f"hera bench scale: {e}", file=sys.stderr)
+        return 2
+    if "tls" in securities and "tls" not in measurable_modes():
+        print(f"hera bench scale: --security tls needs the tls extra: {TLS_HINT}", file=sys.stderr)
         return 2
     sizes = [8] if args.quick else [int(x) for x in args.nodes.split(",")]
     phases = ["grid"] if args.quick else args.phases.split(",")

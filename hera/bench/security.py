@@ -8,6 +8,7 @@ certificates for every node and router of the spec and the operator made in a fo
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
 import tomllib
@@ -18,6 +19,17 @@ MODES = {
     "tls": '[security]\ntls = true\ncerts = "{certs}"\n',
 }
 """Mode name -> the ``[security]`` table appended to a benchmark's spec text."""
+
+TLS_HINT = "pip install 'hera-fusion[tls]'"
+"""The install that gives the ``tls`` mode what it needs."""
+
+
+def measurable_modes() -> list[str]:
+    """The modes of :data:`MODES` this install can run: ``tls`` needs the ``tls`` extra
+    (cryptography, to make the certificates), the others nothing more."""
+    has_tls = importlib.util.find_spec("cryptography") is not None
+    return [m for m in MODES if m != "tls" or has_tls]
+
 
 LABELS = {"none": "no security", "auth": "user/password", "tls": "mutual TLS + ACL"}
 """Mode name -> how a benchmark's table names it."""

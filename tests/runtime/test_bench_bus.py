@@ -53,6 +53,18 @@ def test_bench_scale_quick_runs_behind_a_router_with_mutual_tls(tmp_path):
     assert delivered > 0.0, out.stdout
 
 
+def without_cryptography(monkeypatch) -> None:
+    """As if the tls extra were not installed."""
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util,
+        "find_spec",
+        lambda name, *a: None if name == "cryptography" else real(name, *a),
+    )
+
+
 def test_without_the_tls_extra_bench_bus_measures_the_rest_and_says_what_is_missing(
     monkeypatch,
 ):
@@ -61,13 +73,8 @@ def test_without_the_tls_extra_bench_bus_measures_the_rest_and_says_what_is_miss
     a minute of measurements with 'certificates need the cryptography package'."""
     from hera.bench import bus
 
-    real = bus.importlib.util.find_spec
     assert bus.measurable_modes() == ["none", "auth", "tls"]  # the test extras have it
-    monkeypatch.setattr(
-        bus.importlib.util,
-        "find_spec",
-        lambda name, *a: None if name == "cryptography" else real(name, *a),
-    )
+    without_cryptography(monkeypatch)
     assert bus.measurable_modes() == ["none", "auth"]
     rows = bus.security_rows({"none": {"p50": 0.2, "p99": 0.4}, "auth": {"p50": 0.3, "p99": 0.5}})
     shown = {name: value for name, value, _, _ in rows}
@@ -76,3 +83,19 @@ def test_without_the_tls_extra_bench_bus_measures_the_rest_and_says_what_is_miss
         "1 kHz p50/p99, user/password": "0.300 / 0.500 ms (+50 % at p50)",
         "1 kHz p50/p99, mutual TLS + ACL": "not measured: pip install 'hera-fusion[tls]'",
     }
+
+
+def test_without_the_tls_extra_bench_scale_refuses_tls_before_starting_anything(
+    monkeypatch, capsys
+):
+    """--security tls without cryptography: one sentence naming the install, exit code 2,
+    at once (not after the configurations before it have run)."""
+    from hera.bench import scale
+
+    without_cryptography(monkeypatch)
+    monkeypatch.setattr(scale, "run", None)  # starting a cluster would raise
+    assert scale.main(["--quick", "--security", "auth,tls"]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        "hera bench scale: --security tls needs the tls extra: pip install 'hera-fusion[tls]'\n"
+    )

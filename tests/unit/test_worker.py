@@ -91,14 +91,11 @@ def test_missed_deadlines_are_skipped_and_counted_not_burst():
 
     period = 0.01
     w, pub = run_worker(Stall, period, 10)
-    began = [r.values[0] for r in pub]
+    assert len(pub) == 10
+    # Judged on the deadlines the worker set (the steps' start times alone were a CI
+    # failure: one was 3.5 ms or more off the grid on a loaded machine).
+    slots = step_slots(w, pub, period)
     late = list(w.stats.lateness)
-    assert len(began) == len(late) == 10
-    # Each step's deadline as the worker set it: when the step began less how late it was.
-    # A wake-up delay of the machine is in both and cancels (the steps' start times alone
-    # were a CI failure: one was 3.5 ms or more off the grid on a loaded machine).
-    deadlines = [b - d for b, d in zip(began, late, strict=True)]
-    slots = [(t - deadlines[0]) / period for t in deadlines]
     assert all(abs(s - round(s)) < 0.2 for s in slots)  # every deadline on start + k * period
     k = [round(s) for s in slots]
     assert k[:2] == [0, 1]
