@@ -292,8 +292,9 @@ class Worker:
                 break  # a hot reload: the new code steps at this deadline, in this one's place
             if self._changes:
                 self._apply_changes()
+                now = time.monotonic()
             self.stats.lateness.append(now - deadline)
-            self._step(self.measure)
+            self._step(self.measure, now)
             if k == 0 and self._phase is not None:  # later deadlines on the node's grid
                 start = on_grid(self._phase, period, start + period / 2) - period
             k += 1
@@ -302,8 +303,10 @@ class Worker:
                 if remaining <= 0:
                     break
 
-    def _step(self, measure: Measure) -> None:
-        self.step_started = time.monotonic()
+    def _step(self, measure: Measure, started: float) -> None:
+        """One step, begun at ``started`` (monotonic; its lateness was taken from it, so
+        ``step_started - lateness[-1]`` is the step's deadline, exactly)."""
+        self.step_started = started
         if self.first_step_at is None:
             self.first_step_at = self.step_started
         t_wall = wallclock.now()
