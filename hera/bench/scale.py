@@ -14,6 +14,11 @@ Measured after a warm-up, over ``--seconds``:
 - publish-to-store latency (wall clock, one host): p50 of the readers' medians, p99 of the
   worst reader, and p99 of every sample of every reader pooled (the cluster's p99);
 - CPU per node (mean, % of one core) and in total (% of the machine), RSS per node;
+- the whole machine (:mod:`hera.bench.machine`): ``busy %``, everything that ran (the
+  cluster and anything beside it), ``steal %``, what the hypervisor of a virtual machine
+  took, and ``worst``, its largest share of one 0.1 s interval (a host stalling the whole
+  machine for a moment shows there; latency spikes that come with it are not the
+  cluster's);
 
 each in the security modes of ``--security`` (:mod:`hera.bench.security`: ``auth``, the
 spec's default user and password with access control; ``tls``, mutual TLS with access
@@ -40,6 +45,7 @@ from typing import Any
 import zenoh
 
 from hera.bench.latency import LatencyHistogram
+from hera.bench.machine import MachineWindow
 from hera.bench.security import TLS_HINT, measurable_modes, modes, secure
 from hera.client import ClusterClient
 from hera.launcher import node_command
@@ -50,6 +56,7 @@ STREAMS = 4
 READS = 3
 PERIOD = 0.02
 BIN_PREFIX = "lat_bin_"  # a reader's counters: its latency histogram's non-empty bins
+NO_MACHINE = {"busy_pct": float("nan"), "steal_pct": float("nan"), "worst_steal_pct": float("nan")}
 
 
 class Stream(Measure):
@@ -215,8 +222,9 @@ def run(
         time.sleep(warmup)
         status = client.status(timeout=2.0)
         pids = [st["pid"] for st in status.values()]
+        window = MachineWindow()
         c0, t0 = sum(_cpu(p) for p in pids), time.monotonic()
-        time.sleep(seconds)
+        window.sleep(seconds)
         c1, t1 = sum(_cpu(p) for p in pids), time.monotonic()
         status = client.status(timeout=3.0)
     readers = [st["measures"]["reader"]["counters"] for st in status.values()]
@@ -238,6 +246,7 @@ def run(
         "cpu_node_pct": cpu / n,
         "cpu_machine_pct": cpu / (os.cpu_count() or 1),
         "rss_mb": statistics.mean(st.get("rss_mb") or 0.0 for st in status.values()),
+        **(window.figures() or NO_MACHINE),
     }
 
 
@@ -278,7 +287,7 @@ def main(argv: list[str]) -> int:
     head = (
         f"{'nodes':>5} {'topology':<8} {'phases':<9} {'security':<8} {'delivered %':>11} "
         f"{'p50 ms':>7} {'p99 ms':>7} {'p99 all':>7} {'CPU/node %':>10} {'machine %':>9} "
-        f"{'RSS MB':>6}"
+        f"{'RSS MB':>6} {'busy %':>6} {'steal %':>7} {'worst':>5}"
     )
     print(head, flush=True)
     configs = [
@@ -298,7 +307,8 @@ def main(argv: list[str]) -> int:
         print(
             f"{first} {r['delivered_pct']:>11.3f} {r['p50_ms']:>7.2f} "
             f"{r['p99_ms']:>7.2f} {r['p99_all_ms']:>7.2f} {r['cpu_node_pct']:>10.1f} "
-            f"{r['cpu_machine_pct']:>9.1f} {r['rss_mb']:>6.0f}",
+            f"{r['cpu_machine_pct']:>9.1f} {r['rss_mb']:>6.0f} {r['busy_pct']:>6.1f} "
+            f"{r['steal_pct']:>7.1f} {r['worst_steal_pct']:>5.1f}",
             flush=True,
         )
     print("targets: 32 nodes >= 99.9 % delivered, p99 <= 20 ms (the better topology)")

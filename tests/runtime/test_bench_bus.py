@@ -51,6 +51,8 @@ def test_bench_scale_quick_runs_behind_a_router_with_mutual_tls(tmp_path):
     assert len(rows) == 1 and rows[0][:4] == ["8", "routers", "grid", "tls"], out.stdout
     delivered = float(rows[0][4])  # a number, not "failed: ..."
     assert delivered > 0.0, out.stdout
+    busy, steal, worst = (float(x) for x in rows[0][11:])  # the whole machine's figures
+    assert len(rows[0]) == 14 and 0.0 < busy <= 100.0 and 0.0 <= steal <= worst <= 100.0, rows
 
 
 def without_cryptography(monkeypatch) -> None:
