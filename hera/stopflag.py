@@ -4,11 +4,11 @@
 Why not the Event itself: a measure worker waits once per step, and a timed wait on a
 Python lock (what ``Event.wait`` comes down to) costs more than the kernel's own timed
 wait. Measured on a 2-vCPU machine, eight workers at 50 Hz in one process, CPU time per
-step: 60-71 us waiting on an Event (58-69 us on a bare lock), 43-53 us in ``select`` on a
-file descriptor. So the flag is an ``eventfd`` (a pipe where there is none) that
-:meth:`StopFlag.set` makes readable for good; :meth:`StopFlag.wait` is one ``select`` on
-it. Where the descriptor cannot be had, or is past ``select``'s limit, it falls back to
-an Event. :meth:`StopFlag.close` (by the thread that waits, when it ends) gives the
+step in four alternating runs: 40-54 us waiting on an Event, 35-43 us in ``select`` on a
+file descriptor (a bare lock instead of the Event saved nothing). So the flag is an
+``eventfd`` (a pipe where there is none) that :meth:`StopFlag.set` makes readable for
+good; :meth:`StopFlag.wait` is one ``select`` on it. Where the descriptor cannot be had,
+or is past ``select``'s limit, it falls back to an Event. :meth:`StopFlag.close` (by the thread that waits, when it ends) gives the
 descriptor back; a ``set`` after that only sets the flag.
 """
 
