@@ -8,8 +8,9 @@ step in four alternating runs: 40-54 us waiting on an Event, 35-43 us in ``selec
 file descriptor (a bare lock instead of the Event saved nothing). So the flag is an
 ``eventfd`` (a pipe where there is none) that :meth:`StopFlag.set` makes readable for
 good; :meth:`StopFlag.wait` is one ``select`` on it. Where the descriptor cannot be had,
-or is past ``select``'s limit, it falls back to an Event. :meth:`StopFlag.close` (by the thread that waits, when it ends) gives the
-descriptor back; a ``set`` after that only sets the flag.
+or is past ``select``'s limit, it falls back to an Event. :meth:`StopFlag.close` (by the
+thread that waits, when it ends) gives the descriptor back; a ``set`` after that only sets
+the flag.
 """
 
 from __future__ import annotations
@@ -78,7 +79,6 @@ class StopFlag:
     def close(self) -> None:
         """Give the descriptor back (the waiting thread, once it waits no more)."""
         with self._lock:
-            self._watch = []
             self._close_fds()
             if self._event is None:
                 self._event = threading.Event()
