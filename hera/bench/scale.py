@@ -14,15 +14,18 @@ Measured after a warm-up, over ``--seconds``:
 - publish-to-store latency (wall clock, one host): p50 of the readers' medians, p99 of the
   worst reader, and p99 of every sample of every reader pooled (the cluster's p99);
 - CPU per node (mean, % of one core) and in total (% of the machine), RSS per node;
-- the whole machine (:mod:`hera.bench.machine`): ``busy %``, everything that ran (the
-  cluster and anything beside it), ``steal %``, what the hypervisor of a virtual machine
-  took, and ``worst``, its largest share of one 0.1 s interval (a host stalling the whole
-  machine for a moment shows there; latency spikes that come with it are not the
-  cluster's);
+- the whole machine (:mod:`hera.bench.machine`): ``busy %``, every process that ran (the
+  cluster, its routers and anything beside it), ``steal %``, what the hypervisor of a
+  virtual machine took, and ``worst``, its largest share of one 0.1 s interval (a host
+  stalling the whole machine for a moment shows there; latency spikes that come with it
+  are not the cluster's);
 
 each in the security modes of ``--security`` (:mod:`hera.bench.security`: ``auth``, the
 spec's default user and password with access control; ``tls``, mutual TLS with access
-control; ``none``).
+control; ``none``), then the peer, ``zenoh`` (unless ``--no-peer``): the same traffic on
+bare zenoh-python (:mod:`hera.bench.scale_peer`), every node's session configured as
+hera's, no security, one thread per node publishing its four streams; a last table gives
+hera's figures over the peer's for each configuration.
 
 Targets (issue 14): 32 nodes, >= 99.9 % delivered and p99 <= 20 ms in the better topology.
 """
@@ -31,7 +34,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
+import json
 import os
+import socket
 import statistics
 import subprocess
 import sys
@@ -56,6 +62,10 @@ STREAMS = 4
 READS = 3
 PERIOD = 0.02
 BIN_PREFIX = "lat_bin_"  # a reader's counters: its latency histogram's non-empty bins
+PEER = "zenoh"
+PEER_WARMUP = 3.0
+"""Seconds of the peers' traffic before their window: links settled, caches warm."""
+PEER_TEXT = "the same traffic on bare zenoh-python, no security (hera.bench.scale_peer)"
 NO_MACHINE = {"busy_pct": float("nan"), "steal_pct": float("nan"), "worst_steal_pct": float("nan")}
 
 
@@ -129,25 +139,33 @@ class Reader(Measure):
         self.ctx.store.remove_listener(self._on_sample)
 
 
-def spec_text(n: int, topology: str, warmup: float, phases: str = "grid") -> str:
+def spec_text(
+    n: int, topology: str, warmup: float, phases: str = "grid", ports: bool = False
+) -> str:
     """The benchmark cluster: ``n`` nodes, ``topology`` ``mesh`` or ``routers``, the streams
-    on one grid (``phases`` ``grid``) or the nodes' in turn (``staggered``)."""
+    on one grid (``phases`` ``grid``) or the nodes' in turn (``staggered``). ``ports``: the
+    peers of a mesh get free ports written in (for processes that ``hera up`` does not
+    start: :mod:`hera.bench.scale_peer`)."""
     from hera.ports import free_ports
 
     lines = [f'[cluster]\nname = "scale{n}{topology}"\nlease_ms = 3000\n']
     routers = free_ports("127.0.0.1", 0 if topology == "mesh" else (1 if n <= 16 else 2))
     for r, port in enumerate(routers):
         lines.append(f'[[routers]]\nname = "r{r + 1}"\nport = {port}\n')
+    node_ports = free_ports("127.0.0.1", n) if ports and not routers else []
     for i in range(n):
         node = f"n{i + 1}"
         lines.append(f'[[nodes]]\nname = "{node}"\n')
+        if node_ports:
+            lines.append(f"port = {node_ports[i]}\n")
         if routers:  # clients, split between the routers
             port = routers[i % len(routers)]
             lines.append(f'mode = "client"\nconnect = ["tcp/127.0.0.1:{port}"]\n')
         offset = f"offset = {PERIOD * i / n:.6f}\n" if phases == "staggered" else ""
         for k in range(1, STREAMS + 1):
             lines.append(
-                f'[[nodes.measures]]\nuse = "hera.bench.scale:Stream"\nname = "s{k}"\n{offset}'
+                f'[[nodes.measures]]\nuse = "hera.bench.scale:Stream"\nname = "s{k}"\n'
+                f"period = {PERIOD}\n{offset}"
             )
         streams = [
             f"s{k}/n{(i + j) % n + 1}" for j in range(1, READS + 1) for k in range(1, STREAMS + 1)
@@ -208,6 +226,52 @@ def cluster(
                 proc.wait()
 
 
+def _rss_mb(pid: int) -> float:
+    """Resident memory of process ``pid`` (MB, 0 when it is gone)."""
+    try:
+        with open(f"/proc/{pid}/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+    except OSError:
+        return 0.0
+
+
+def figures(
+    readers: list[dict[str, Any]],
+    cpu_seconds: float,
+    elapsed: float,
+    rss: list[float],
+    window: MachineWindow,
+) -> dict[str, float]:
+    """The row of one run from its readers (``received``, ``expected``, ``bins``: a latency
+    histogram's non-empty bins), the CPU seconds its nodes used in ``elapsed`` seconds,
+    their RSS (MB) and the machine's window."""
+    pooled = LatencyHistogram()
+    p50s, p99s = [], []
+    for r in readers:
+        one = LatencyHistogram()
+        one.merge(r["bins"])
+        pooled.merge(r["bins"])
+        if (p50 := one.percentile(0.5)) is not None:
+            p50s.append(1e3 * p50)
+            p99s.append(1e3 * (one.percentile(0.99) or 0.0))
+    p99_all = pooled.percentile(0.99)
+    received = sum(r["received"] for r in readers)
+    expected = sum(r["expected"] for r in readers)
+    cpu = 100 * cpu_seconds / elapsed
+    nan = float("nan")
+    return {
+        "answered": len(readers),
+        "delivered_pct": 100 * received / expected if expected else nan,
+        "p50_ms": statistics.median(p50s) if p50s else nan,
+        "p99_ms": max(p99s) if p99s else nan,
+        "p99_all_ms": nan if p99_all is None else 1e3 * p99_all,
+        "cpu_node_pct": cpu / len(rss),
+        "cpu_machine_pct": cpu / (os.cpu_count() or 1),
+        "rss_mb": statistics.mean(rss),
+        **(window.figures() or NO_MACHINE),
+    }
+
+
 def run(
     n: int, topology: str, seconds: float, phases: str = "grid", security: str = "auth"
 ) -> dict[str, float]:
@@ -227,27 +291,94 @@ def run(
         window.sleep(seconds)
         c1, t1 = sum(_cpu(p) for p in pids), time.monotonic()
         status = client.status(timeout=3.0)
-    readers = [st["measures"]["reader"]["counters"] for st in status.values()]
-    pooled = LatencyHistogram()
-    for r in readers:
-        pooled.merge(
-            {int(k[len(BIN_PREFIX) :]): int(v) for k, v in r.items() if k.startswith(BIN_PREFIX)}
+    readers = []
+    for st in status.values():
+        c = st["measures"]["reader"]["counters"]
+        bins = {int(k[len(BIN_PREFIX) :]): int(v) for k, v in c.items() if k.startswith(BIN_PREFIX)}
+        readers.append(
+            {"received": c.get("received", 0), "expected": c.get("expected", 0), "bins": bins}
         )
-    p99_all = pooled.percentile(0.99)
-    received = sum(r.get("received", 0) for r in readers)
-    expected = sum(r.get("expected", 0) for r in readers)
-    cpu = 100 * (c1 - c0) / (t1 - t0)
-    return {
-        "answered": len(status),
-        "delivered_pct": 100 * received / expected if expected else float("nan"),
-        "p50_ms": statistics.median(r.get("p50_ms", float("nan")) for r in readers),
-        "p99_ms": max(r.get("p99_ms", float("nan")) for r in readers),
-        "p99_all_ms": float("nan") if p99_all is None else 1e3 * p99_all,
-        "cpu_node_pct": cpu / n,
-        "cpu_machine_pct": cpu / (os.cpu_count() or 1),
-        "rss_mb": statistics.mean(st.get("rss_mb") or 0.0 for st in status.values()),
-        **(window.figures() or NO_MACHINE),
-    }
+    rss = [st.get("rss_mb") or 0.0 for st in status.values()]
+    return figures(readers, c1 - c0, t1 - t0, rss, window)
+
+
+def _wait_listening(port: int, procs: list[subprocess.Popen], deadline: float) -> None:
+    """Return once 127.0.0.1:``port`` takes connections; RuntimeError when a process of
+    ``procs`` ended or ``deadline`` (monotonic) passed first."""
+    while True:
+        with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), 0.5):
+            return
+        if time.monotonic() > deadline or any(p.poll() is not None for p in procs):
+            raise RuntimeError(f"the router on port {port} did not listen")
+        time.sleep(0.05)
+
+
+def peer_run(n: int, topology: str, seconds: float, phases: str = "grid") -> dict[str, float]:
+    """The same configuration on bare zenoh-python (:mod:`hera.bench.scale_peer`: every
+    node's session opened as hera opens it, no hera runtime on it; routers ``hera router``),
+    without security; its figures, as :func:`run`'s. The window starts ``PEER_WARMUP``
+    seconds after every peer said it publishes."""
+    from hera.spec import load_spec
+
+    with tempfile.TemporaryDirectory(prefix="hera-scale-peer-") as tmp:
+        path = Path(tmp) / "spec.toml"
+        text = spec_text(n, topology, 0.0, phases, ports=True)
+        path.write_text(secure(text, "none", Path(tmp) / "certs"))
+        spec = load_spec(path)
+        quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+        procs = [
+            subprocess.Popen(node_command("router", str(path), "--name", r.name), **quiet)
+            for r in spec.routers
+        ]
+        try:
+            for r in spec.routers:  # a client whose router does not listen yet gives up
+                _wait_listening(r.port, procs, time.monotonic() + 30)
+            peers = [
+                subprocess.Popen(
+                    [sys.executable, "-m", "hera.bench.scale_peer", str(path), node.name],
+                    stdin=subprocess.PIPE,
+                    stdout=subprocess.PIPE,
+                    stderr=subprocess.DEVNULL,
+                    text=True,
+                )
+                for node in spec.nodes
+            ]
+            procs += peers
+            for p in peers:  # EOF when it failed (its exit code says so)
+                if p.stdout.readline().strip() != "ready":
+                    raise RuntimeError(f"a zenoh peer exited with code {p.wait(10)}")
+            start = time.time() + PEER_WARMUP
+            for p in peers:
+                p.stdin.write(f"{start!r} {start + seconds!r}\n")
+                p.stdin.flush()
+            time.sleep(max(0.0, start - time.time()))
+            window = MachineWindow()
+            c0, t0 = sum(_cpu(p.pid) for p in peers), time.monotonic()
+            window.sleep(seconds)
+            c1, t1 = sum(_cpu(p.pid) for p in peers), time.monotonic()
+            rss = [_rss_mb(p.pid) for p in peers]
+            readers = []
+            for p in peers:
+                try:
+                    out, _ = p.communicate(timeout=30)
+                except subprocess.TimeoutExpired:
+                    raise RuntimeError("a zenoh peer did not end after its window") from None
+                if p.returncode != 0 or not out.strip():
+                    raise RuntimeError(f"a zenoh peer exited with code {p.returncode}")
+                r = json.loads(out.splitlines()[-1])
+                r["bins"] = {int(k): int(v) for k, v in r["bins"].items()}
+                readers.append(r)
+        finally:
+            for p in procs:
+                if p.poll() is None:
+                    p.terminate()
+            for p in procs:
+                try:
+                    p.wait(30)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()
+    return figures(readers, c1 - c0, t1 - t0, rss, window)
 
 
 def main(argv: list[str]) -> int:
@@ -261,6 +392,12 @@ def main(argv: list[str]) -> int:
         "--security", default="auth", help="auth (the default), tls and/or none: see above"
     )
     ap.add_argument("--quick", action="store_true", help="8 nodes, 5 s (smoke test)")
+    ap.add_argument(
+        "--no-peer",
+        dest="peer",
+        action="store_false",
+        help=f"skip the peer ({PEER}: {PEER_TEXT}) measured after each configuration",
+    )
     args = ap.parse_args(argv)
     try:
         securities = modes(args.security, "--security")
@@ -285,34 +422,63 @@ def main(argv: list[str]) -> int:
         flush=True,
     )
     head = (
-        f"{'nodes':>5} {'topology':<8} {'phases':<9} {'security':<8} {'delivered %':>11} "
+        f"{'nodes':>5} {'topology':<8} {'phases':<9} {'stack':<10} {'delivered %':>11} "
         f"{'p50 ms':>7} {'p99 ms':>7} {'p99 all':>7} {'CPU/node %':>10} {'machine %':>9} "
         f"{'RSS MB':>6} {'busy %':>6} {'steal %':>7} {'worst':>5}"
     )
     print(head, flush=True)
-    configs = [
-        (n, t, p, sec)
-        for n in sizes
-        for t in args.topologies.split(",")
-        for p in phases
-        for sec in securities
-    ]
-    for n, topology, phase, sec in configs:
-        first = f"{n:>5} {topology:<8} {phase:<9} {sec:<8}"
-        try:
-            r = run(n, topology, seconds, phase, sec)
-        except RuntimeError as e:
-            print(f"{first} failed: {e}", flush=True)
-            continue
+    stacks = [f"hera/{sec}" for sec in securities] + ([PEER] if args.peer else [])
+    ratios: list[str] = []
+    for n, topology, phase in itertools.product(sizes, args.topologies.split(","), phases):
+        rows: dict[str, dict[str, float]] = {}
+        for stack in stacks:
+            first = f"{n:>5} {topology:<8} {phase:<9} {stack:<10}"
+            try:
+                if stack == PEER:
+                    r = peer_run(n, topology, seconds, phase)
+                else:
+                    r = run(n, topology, seconds, phase, stack.removeprefix("hera/"))
+            except RuntimeError as e:
+                print(f"{first} failed: {e}", flush=True)
+                continue
+            print(f"{first} {_row(r)}", flush=True)
+            rows[stack] = r
+        peer = rows.pop(PEER, None)
+        if peer is not None:
+            ratios += [
+                f"{n:>5} {topology:<8} {phase:<9} {stack:<10} {_ratio(r, peer)}"
+                for stack, r in rows.items()
+            ]
+    if ratios:
+        print(f"hera / {PEER} (same configuration, same run; {PEER}: {PEER_TEXT}):")
         print(
-            f"{first} {r['delivered_pct']:>11.3f} {r['p50_ms']:>7.2f} "
-            f"{r['p99_ms']:>7.2f} {r['p99_all_ms']:>7.2f} {r['cpu_node_pct']:>10.1f} "
-            f"{r['cpu_machine_pct']:>9.1f} {r['rss_mb']:>6.0f} {r['busy_pct']:>6.1f} "
-            f"{r['steal_pct']:>7.1f} {r['worst_steal_pct']:>5.1f}",
-            flush=True,
+            f"{'nodes':>5} {'topology':<8} {'phases':<9} {'stack':<10} "
+            f"{'CPU/node':>8} {'p50':>6} {'p99 all':>7} {'RSS':>6}"
         )
+        print("\n".join(ratios))
     print("targets: 32 nodes >= 99.9 % delivered, p99 <= 20 ms (the better topology)")
     return 0
+
+
+def _row(r: dict[str, float]) -> str:
+    return (
+        f"{r['delivered_pct']:>11.3f} {r['p50_ms']:>7.2f} "
+        f"{r['p99_ms']:>7.2f} {r['p99_all_ms']:>7.2f} {r['cpu_node_pct']:>10.1f} "
+        f"{r['cpu_machine_pct']:>9.1f} {r['rss_mb']:>6.0f} {r['busy_pct']:>6.1f} "
+        f"{r['steal_pct']:>7.1f} {r['worst_steal_pct']:>5.1f}"
+    )
+
+
+def _ratio(r: dict[str, float], peer: dict[str, float]) -> str:
+    """hera's figures over the peer's: CPU per node, p50, pooled p99, RSS."""
+
+    def x(key: str) -> float:
+        return r[key] / peer[key] if peer[key] > 0 else float("nan")
+
+    return (
+        f"{x('cpu_node_pct'):>7.2f}x {x('p50_ms'):>5.2f}x {x('p99_all_ms'):>6.2f}x "
+        f"{x('rss_mb'):>5.2f}x"
+    )
 
 
 if __name__ == "__main__":  # pragma: no cover
