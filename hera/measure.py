@@ -160,6 +160,14 @@ class MeasureSpec:
         "together on every node, different offsets take turns; default 0 (sync measures: "
         "their slots)",
     )
+    thread: str = setting(
+        "own",
+        choice("own", "shared"),
+        "`own`: the measure steps in a thread of its own; `shared`: its node's one thread for "
+        "the shared measures of its period and offset steps it with them (one wake for all, "
+        "less CPU; a step that blocks holds up the others of that deadline, see hera.beat); "
+        "not for sync measures",
+    )
     iterations: int | str | None = setting(
         None,
         either(number(minimum=1, integer=True), choice("forever")),
@@ -198,6 +206,10 @@ class MeasureSpec:
                 s.kind.convert(value)
             except ValueError as e:
                 raise MeasureSpecError(where, f"{s.key} {e}, got {value!r}") from None
+        if self.thread == "shared" and self.sync:
+            raise MeasureSpecError(
+                where, 'thread = "shared" is for unsynchronised measures (sync = true)'
+            )
         if self.offset is not None:
             if self.sync:
                 raise MeasureSpecError(where, "offset is for unsynchronised measures (sync = true)")

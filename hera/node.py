@@ -38,6 +38,7 @@ import zenoh
 
 from hera import wallclock
 from hera.args import ArgsStore
+from hera.beat import Beat
 from hera.bus import BusConfig, open_session, with_overrides
 from hera.control import EXIT_INJECTED_CRASH, ControlPlane
 from hera.csvlog import CsvLog
@@ -165,6 +166,8 @@ class Node:
         self._recover()
         self._handles.append(s.liveliness().declare_token(self.keys.alive(self.name)))
         self._start_services()
+        self._beats: dict[tuple[float, float], Beat] = {}
+        self._beats_lock = threading.Lock()
         self.supervisor = Supervisor(
             self.spec.intensity,
             self.spec.intensity_period,
@@ -300,9 +303,23 @@ class Node:
                 args_source=lambda: self.measure_args(cls, decl),
                 gate=gate,
                 phase=self._phase_of(spec),
+                beat=self._beat_of(spec) if spec.thread == "shared" else None,
             )
 
         return make
+
+    def _beat_of(self, spec: MeasureSpec) -> Beat:
+        """The node's beat of ``spec``'s period and offset (made at first use): the thread
+        that steps its shared measures (:mod:`hera.beat`)."""
+        period = float(spec.period)
+        offset = 0.0 if spec.offset is None else spec.offset
+        with self._beats_lock:
+            beat = self._beats.get((period, offset))
+            if beat is None:
+                phase = wall_grid(offset, period, wallclock.now(), time.monotonic())
+                beat = Beat(period, phase, name=f"beat-{period:g}s+{offset:g}")
+                self._beats[(period, offset)] = beat
+            return beat
 
     def _phase_of(self, spec: MeasureSpec) -> float | None:
         """The grid of a measure's steps (timer coalescing, :mod:`hera.worker`): ``offset``

@@ -16,6 +16,11 @@ and their samples leave in batches: the 5-node observer cluster (``hera bench bu
 turns: three 10 Hz range sensors at offsets 0, 1/30 and 2/30 s give a fusion a reading
 every 33 ms rather than three at once every 100 ms.
 
+A worker given a :class:`~hera.beat.Beat` (a measure declared ``thread = "shared"``) runs
+its first step at once in its own thread, then has the beat's thread run its later steps
+(:meth:`Worker.beat_step`) while its own thread waits for the end; everything else is the
+same.
+
 The worker publishes what the measure returns through the node's ``publish`` function and
 reports its exit (normal or with the exception) to its supervisor.
 """
@@ -33,6 +38,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from hera import wallclock
+from hera.beat import Beat
 from hera.measure import Measure, MeasureContext, Reading, own_keys, readings_of
 from hera.stopflag import StopFlag
 
@@ -115,9 +121,11 @@ class Worker:
         args_source: Callable[[], Mapping[str, Any]] | None = None,
         gate: threading.Event | None = None,
         phase: float | None = None,
+        beat: Beat | None = None,
     ) -> None:
         """``phase``: the monotonic instant of its node's shared grid (timer coalescing, see
-        the module docstring); None: deadlines count from the worker's own start."""
+        the module docstring); None: deadlines count from the worker's own start. ``beat``:
+        the beat that runs its steps after the first (``thread = "shared"``), or None."""
         self.id = next(self._ids)
         self.measure_cls = measure_cls
         self.args = args
@@ -139,6 +147,15 @@ class Worker:
         self._args_source = args_source
         self._gate = gate
         self._phase = phase
+        self._beat = beat
+        self._beat_error: BaseException | None = None
+        self._remaining: int | None = None
+        self._not_before = 0.0
+        self._stepper: int | None = None  # ident of the thread running a beat's step
+        self._not_stepping = threading.Event()
+        self._not_stepping.set()
+        self._beat_lock = threading.Lock()  # a beat's step begins, or the worker left: not both
+        self._left = False
         self._changes: dict[str, Any] = {}
         self._changes_lock = threading.Lock()
         self.measure: Measure | None = None
@@ -199,7 +216,10 @@ class Worker:
                 return
             if self.handover is not None:
                 self.measure.code_change(*self.handover)
-            self._loop()
+            if self._beat is None:
+                self._loop()
+            else:
+                self._loop_on_beat(self._beat)
         except BaseException as e:  # reported to the supervisor, which decides
             error = e
             self.error = f"{type(e).__name__}: {e}"
@@ -251,7 +271,7 @@ class Worker:
         calib, prefix = own_keys(self.ctx.node, self.spec.name)
 
         def on_change(key: str, value: Any, deleted: bool) -> None:
-            if threading.current_thread() is self.thread:
+            if threading.current_thread() is self.thread or threading.get_ident() == self._stepper:
                 return  # the measure's own write
             if key == calib or key.startswith(prefix):
                 with self._changes_lock:
@@ -304,6 +324,67 @@ class Worker:
                 remaining -= 1
                 if remaining <= 0:
                     break
+
+    def _loop_on_beat(self, beat: Beat) -> None:
+        """The first step at once, as :meth:`_loop`'s; the later ones on ``beat``, this
+        thread waiting for the end (stop, retirement, the last iteration or an error of a
+        step, which is raised here as if this thread had run it)."""
+        now = time.monotonic()
+        if self._retire is not None or self._stop.is_set() or self.abandoned:
+            return
+        if self._changes:
+            self._apply_changes()
+            now = time.monotonic()
+        self.stats.lateness.append(0.0)
+        self._step(self.measure, now)
+        self._remaining = None if self.spec.steps is None else self.spec.steps - 1
+        if self._remaining is not None and self._remaining <= 0:
+            return
+        self._not_before = now + self.spec.period / 2
+        beat.join(self)
+        try:
+            self._stop.wait()
+        finally:
+            beat.leave(self)
+            with self._beat_lock:
+                self._left = True  # no step begins from now on
+            self._not_stepping.wait()  # and none runs: the measure is closed after
+        if self._beat_error is not None:
+            raise self._beat_error
+
+    def beat_step(self, deadline: float) -> None:
+        """The step due at ``deadline`` (monotonic), run by the beat's thread; ends the
+        worker (sets its stop flag) on retirement, its last iteration or an error, which
+        its own thread then raises. Never raises."""
+        with self._beat_lock:
+            if self._left or self._stop.is_set() or self.abandoned or deadline < self._not_before:
+                return
+            if self._retire is not None:
+                self._stop.set()  # a hot reload: the new code steps at this deadline
+                return
+            self._not_stepping.clear()
+        self._stepper = threading.get_ident()
+        try:
+            now = time.monotonic()
+            if self._changes:
+                self._apply_changes()
+                now = time.monotonic()
+            self.stats.lateness.append(now - deadline)
+            self._step(self.measure, now)
+            if self._remaining is not None:
+                self._remaining -= 1
+                if self._remaining <= 0:
+                    self._stop.set()
+        except BaseException as e:  # this worker's crash, raised in its own thread
+            self._beat_error = e
+            self._stop.set()
+        finally:
+            self._stepper = None
+            self._not_stepping.set()
+
+    def overran(self, missed: int) -> None:
+        """``missed`` deadlines went by without a step (its beat was late)."""
+        self.stats.overruns += missed
 
     def _step(self, measure: Measure, started: float) -> None:
         """One step, begun at ``started`` (monotonic; its lateness was taken from it, so

@@ -7,7 +7,9 @@ Prints, each measured in this run:
 - the CPU share and the memory (RSS of each node) of the 5-node observer cluster
   (deploy/observers.toml: 20 counters at 10 Hz; a node that runs no filter loads neither
   numba nor numpy), and its CPU share once its counters are stopped through the control
-  plane (truly idle: what the runtime itself costs);
+  plane (truly idle: what the runtime itself costs); and the CPU share of its peer, the
+  same traffic on bare zenoh-python (:mod:`hera.bench.peer`: each node's session
+  configured as hera's, no security, no counting of alive observers), with the ratio;
 - how fast a crashed measure runs again, and how fast peers notice a SIGKILLed and a
   SIGSTOPped node;
 - the latency cost of security: publish-to-store p50 at 1 kHz with user/password
@@ -245,6 +247,20 @@ def observers(cpu_seconds: float, crashes: int) -> dict[str, object]:
     return out
 
 
+def observers_peer(cpu_seconds: float) -> float:
+    """Percent of one core the observer cluster's traffic costs on bare zenoh-python
+    (:func:`hera.bench.peer.measure`), over ``cpu_seconds``."""
+    from hera.bench.peer import measure
+    from hera.ports import free_ports
+    from hera.spec import load_spec
+
+    spec = load_spec(observers_spec())
+    spec = spec.with_ports(free_ports("127.0.0.1", len(spec.unported())))
+    with tempfile.TemporaryDirectory(prefix="hera-bus-peer-") as tmp:
+        m = measure(spec, Path(tmp), cpu_seconds)
+    return 100 * m.cpu_seconds / m.elapsed
+
+
 def security_rows(sec: dict[str, dict[str, float]]) -> list[tuple[str, str, str, str]]:
     """The table's rows of the security comparison: each mode's 1 kHz p50/p99 and its cost
     at p50 against no security; a mode not measured (the tls extra missing) says so."""
@@ -280,6 +296,7 @@ def main(argv: list[str]) -> int:
     lat1k = latency(0.001, secs)
     rate = absorb(1.0 if args.quick else 3.0)
     obs = observers(1.0 if args.quick else 5.0, 2 if args.quick else args.crashes)
+    peer = observers_peer(1.0 if args.quick else 5.0)
     sec = security_cost(secs, 1 if args.quick else args.rounds, modes)
 
     def fmt(x, unit, digits=2):
@@ -298,6 +315,14 @@ def main(argv: list[str]) -> int:
             f"{obs['cpu_total_pct']:.1f} % of one core "
             f"({obs['cpu_machine_pct']:.1f} % of {os.cpu_count()} cores)",
             "<= 10 %",
+            "",
+        ),
+        (
+            "the same traffic on bare zenoh-python",
+            f"{peer:.1f} % of one core (hera / zenoh: {obs['cpu_total_pct'] / peer:.2f}x)"
+            if peer > 0
+            else "n/a",
+            "",
             "",
         ),
         (

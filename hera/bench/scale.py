@@ -23,7 +23,7 @@ Measured after a warm-up, over ``--seconds``:
 each in the security modes of ``--security`` (:mod:`hera.bench.security`: ``auth``, the
 spec's default user and password with access control; ``tls``, mutual TLS with access
 control; ``none``), then the peer, ``zenoh`` (unless ``--no-peer``): the same traffic on
-bare zenoh-python (:mod:`hera.bench.scale_peer`), every node's session configured as
+bare zenoh-python (:mod:`hera.bench.peer`), every node's session configured as
 hera's, no security, one thread per node publishing its four streams; a last table gives
 hera's figures over the peer's for each configuration.
 
@@ -35,9 +35,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import itertools
-import json
 import os
-import socket
 import statistics
 import subprocess
 import sys
@@ -48,6 +46,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+import tomllib
 import zenoh
 
 from hera.bench.latency import LatencyHistogram
@@ -63,9 +62,7 @@ READS = 3
 PERIOD = 0.02
 BIN_PREFIX = "lat_bin_"  # a reader's counters: its latency histogram's non-empty bins
 PEER = "zenoh"
-PEER_WARMUP = 3.0
-"""Seconds of the peers' traffic before their window: links settled, caches warm."""
-PEER_TEXT = "the same traffic on bare zenoh-python, no security (hera.bench.scale_peer)"
+PEER_TEXT = "the same traffic on bare zenoh-python, no security (hera.bench.peer)"
 NO_MACHINE = {"busy_pct": float("nan"), "steal_pct": float("nan"), "worst_steal_pct": float("nan")}
 
 
@@ -145,7 +142,7 @@ def spec_text(
     """The benchmark cluster: ``n`` nodes, ``topology`` ``mesh`` or ``routers``, the streams
     on one grid (``phases`` ``grid``) or the nodes' in turn (``staggered``). ``ports``: the
     peers of a mesh get free ports written in (for processes that ``hera up`` does not
-    start: :mod:`hera.bench.scale_peer`)."""
+    start: :mod:`hera.bench.peer`)."""
     from hera.ports import free_ports
 
     lines = [f'[cluster]\nname = "scale{n}{topology}"\nlease_ms = 3000\n']
@@ -226,15 +223,6 @@ def cluster(
                 proc.wait()
 
 
-def _rss_mb(pid: int) -> float:
-    """Resident memory of process ``pid`` (MB, 0 when it is gone)."""
-    try:
-        with open(f"/proc/{pid}/statm") as f:
-            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
-    except OSError:
-        return 0.0
-
-
 def figures(
     readers: list[dict[str, Any]],
     cpu_seconds: float,
@@ -302,83 +290,17 @@ def run(
     return figures(readers, c1 - c0, t1 - t0, rss, window)
 
 
-def _wait_listening(port: int, procs: list[subprocess.Popen], deadline: float) -> None:
-    """Return once 127.0.0.1:``port`` takes connections; RuntimeError when a process of
-    ``procs`` ended or ``deadline`` (monotonic) passed first."""
-    while True:
-        with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), 0.5):
-            return
-        if time.monotonic() > deadline or any(p.poll() is not None for p in procs):
-            raise RuntimeError(f"the router on port {port} did not listen")
-        time.sleep(0.05)
-
-
 def peer_run(n: int, topology: str, seconds: float, phases: str = "grid") -> dict[str, float]:
-    """The same configuration on bare zenoh-python (:mod:`hera.bench.scale_peer`: every
-    node's session opened as hera opens it, no hera runtime on it; routers ``hera router``),
-    without security; its figures, as :func:`run`'s. The window starts ``PEER_WARMUP``
-    seconds after every peer said it publishes."""
-    from hera.spec import load_spec
+    """The same configuration on bare zenoh-python (:mod:`hera.bench.peer`: every node's
+    session configured as hera's, no hera runtime on it; routers ``hera router``), without
+    security; its figures, as :func:`run`'s."""
+    from hera.bench.peer import measure
+    from hera.spec import parse_spec
 
+    spec = parse_spec(tomllib.loads(spec_text(n, topology, 0.0, phases, ports=True)), "scale")
     with tempfile.TemporaryDirectory(prefix="hera-scale-peer-") as tmp:
-        path = Path(tmp) / "spec.toml"
-        text = spec_text(n, topology, 0.0, phases, ports=True)
-        path.write_text(secure(text, "none", Path(tmp) / "certs"))
-        spec = load_spec(path)
-        quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
-        procs = [
-            subprocess.Popen(node_command("router", str(path), "--name", r.name), **quiet)
-            for r in spec.routers
-        ]
-        try:
-            for r in spec.routers:  # a client whose router does not listen yet gives up
-                _wait_listening(r.port, procs, time.monotonic() + 30)
-            peers = [
-                subprocess.Popen(
-                    [sys.executable, "-m", "hera.bench.scale_peer", str(path), node.name],
-                    stdin=subprocess.PIPE,
-                    stdout=subprocess.PIPE,
-                    stderr=subprocess.DEVNULL,
-                    text=True,
-                )
-                for node in spec.nodes
-            ]
-            procs += peers
-            for p in peers:  # EOF when it failed (its exit code says so)
-                if p.stdout.readline().strip() != "ready":
-                    raise RuntimeError(f"a zenoh peer exited with code {p.wait(10)}")
-            start = time.time() + PEER_WARMUP
-            for p in peers:
-                p.stdin.write(f"{start!r} {start + seconds!r}\n")
-                p.stdin.flush()
-            time.sleep(max(0.0, start - time.time()))
-            window = MachineWindow()
-            c0, t0 = sum(_cpu(p.pid) for p in peers), time.monotonic()
-            window.sleep(seconds)
-            c1, t1 = sum(_cpu(p.pid) for p in peers), time.monotonic()
-            rss = [_rss_mb(p.pid) for p in peers]
-            readers = []
-            for p in peers:
-                try:
-                    out, _ = p.communicate(timeout=30)
-                except subprocess.TimeoutExpired:
-                    raise RuntimeError("a zenoh peer did not end after its window") from None
-                if p.returncode != 0 or not out.strip():
-                    raise RuntimeError(f"a zenoh peer exited with code {p.returncode}")
-                r = json.loads(out.splitlines()[-1])
-                r["bins"] = {int(k): int(v) for k, v in r["bins"].items()}
-                readers.append(r)
-        finally:
-            for p in procs:
-                if p.poll() is None:
-                    p.terminate()
-            for p in procs:
-                try:
-                    p.wait(30)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    p.wait()
-    return figures(readers, c1 - c0, t1 - t0, rss, window)
+        m = measure(spec, Path(tmp), seconds)
+    return figures(m.readers, m.cpu_seconds, m.elapsed, m.rss, m.window)
 
 
 def main(argv: list[str]) -> int:

@@ -24,6 +24,7 @@ def test_bench_bus_quick_prints_every_figure(tmp_path):
         "latency p99 @1 kHz",
         "store absorbs",
         "5-node observers CPU, 20 counters at 10 Hz",
+        "the same traffic on bare zenoh-python",
         "5-node observers CPU, counters stopped",
         "observer node RSS (each)",
         "crashed measure running again",

@@ -436,3 +436,49 @@ def test_unknown_measure_fails_before_anything_starts(tmp_path):
     assert "unknown measure 'no_such_measure'; known measures:" in out.stderr
     assert "counter" in out.stderr
     assert not (tmp_path / "run" / "launcher.json").exists()
+
+
+SHARED = """
+[cluster]
+name = "shared"
+[[nodes]]
+name = "a"
+[[nodes]]
+name = "b"
+[[measures]]
+on = "*"
+use = "counter"
+name = "obs{i}"
+count = 3
+period = 0.05
+thread = "shared"
+hang_factor = 5
+hang_min = 0.5
+"""
+
+
+def test_shared_measures_fail_and_recover_alone_on_a_real_node(cluster):
+    c = cluster(SHARED)
+
+    def published(node: str) -> dict[str, int]:
+        return {m: s["published"] for m, s in c.status(node)["measures"].items()}
+
+    wait_for(lambda: all(v > 5 for v in published("a").values()), 10, "every shared measure")
+    # a crash restarts that measure alone; the others of its beat keep publishing
+    assert c.control("a", "inject", {"fault": "crash", "measure": "obs1"})["ok"]
+    wait_for(lambda: c.status("a")["measures"]["obs1"]["restarts"] == 1, 5, "crash restart")
+    before = published("a")
+    wait_for(lambda: all(published("a")[m] > before[m] + 5 for m in before), 5, "all stepping")
+    # a hang holds up its beat until it is reported, then the others step on a new thread
+    assert c.control("a", "inject", {"fault": "hang", "measure": "obs2"})["ok"]
+    wait_for(lambda: c.status("a")["measures"]["obs2"]["hangs"] == 1, 10, "a hang report")
+    before = published("a")
+    wait_for(lambda: all(published("a")[m] > before[m] + 5 for m in before), 5, "all stepping")
+    st = c.status("a")["measures"]
+    assert st["obs2"]["state"] == "running" and "hung" in st["obs2"]["last_error"]
+    assert st["obs3"]["restarts"] == 0 and st["obs3"]["hangs"] == 0
+    # stop and start one; the other node never noticed any of it
+    assert c.control("a", "stop", {"measure": "obs3"})["state"] == "stopped"
+    assert c.control("a", "start", {"measure": "obs3"})["state"] == "running"
+    wait_for(lambda: published("a")["obs3"] > before["obs3"] + 5, 5, "obs3 stepping again")
+    assert all(s["restarts"] == 0 for s in c.status("b")["measures"].values())

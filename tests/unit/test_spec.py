@@ -26,7 +26,7 @@ def test_resolved_json_round_trips(tmp_path):
 BASE = {"cluster": {"name": "c"}, "nodes": [{"name": "a"}]}
 CHUNK = "must use only letters, digits, '_', '.' and '-' (no '/', '*', '$'), at most 64 of them"
 MEASURE_KEYS = (
-    "use, name, period, offset, iterations, sync, sync_group, slot, restart, hang_factor, "
+    "use, name, period, offset, thread, iterations, sync, sync_group, slot, restart, hang_factor, "
     "hang_min, seed, args"
 )
 
