@@ -51,6 +51,8 @@ from typing import Any
 
 import numpy as np
 
+from hera.bench.machine import cpu_seconds
+
 TARGET = 10.0
 CHUNK = 100
 SETTLE_S = 2.0
@@ -330,12 +332,6 @@ CPU_MODEL = """
 """
 
 
-def _cpu_seconds(pid: int) -> float:
-    """User + system CPU seconds of process ``pid`` so far (Linux /proc)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 def node_cpu(backend: str, use: str | None, seconds: float, settle: float = 12.0) -> float:
     """CPU (% of one core) of the node ``computer`` of a two-node cluster (``nav_1``
     publishing ``nav3`` at 100 Hz, on ``rotation_slow``) running measure ``use`` (or
@@ -366,9 +362,9 @@ def node_cpu(backend: str, use: str | None, seconds: float, settle: float = 12.0
                 except (OSError, ValueError, KeyError, TypeError):
                     time.sleep(0.2)
             time.sleep(settle)
-            c0, t0 = _cpu_seconds(pid), time.monotonic()
+            c0, t0 = cpu_seconds(pid), time.monotonic()
             time.sleep(seconds)
-            return 100.0 * (_cpu_seconds(pid) - c0) / (time.monotonic() - t0)
+            return 100.0 * (cpu_seconds(pid) - c0) / (time.monotonic() - t0)
         finally:
             proc.terminate()
             proc.wait(30)

@@ -33,6 +33,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from hera.bench.machine import cpu_seconds
 from hera.bench.security import LABELS, MODES, TLS_HINT, measurable_modes, secure
 from hera.bus import BusConfig, open_session
 from hera.client import ClusterClient
@@ -160,12 +161,6 @@ def absorb(seconds: float) -> float:
         return (after - before) / (time.monotonic() - t0)
 
 
-def _cpu_seconds(pid: int) -> float:
-    with open(f"/proc/{pid}/stat") as f:
-        fields = f.read().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 def _down_seen(c: ClusterClient, victim: str, since: float, timeout: float) -> float | None:
     """Seconds from ``since`` (wall) to the first peer reporting ``victim`` down."""
     deadline = time.monotonic() + timeout
@@ -185,11 +180,11 @@ def _down_seen(c: ClusterClient, victim: str, since: float, timeout: float) -> f
 
 def _cpu_share(pids: dict[str, int], seconds: float) -> float:
     """Percent of one core the processes ``pids`` used together over ``seconds``."""
-    before = {n: _cpu_seconds(p) for n, p in pids.items()}
+    before = {n: cpu_seconds(p) for n, p in pids.items()}
     t0 = time.monotonic()
     time.sleep(seconds)
     span = time.monotonic() - t0
-    return 100 * sum(_cpu_seconds(p) - before[n] for n, p in pids.items()) / span
+    return 100 * sum(cpu_seconds(p) - before[n] for n, p in pids.items()) / span
 
 
 def _each_measure(c: ClusterClient, measures: dict[str, list[str]], verb: str) -> None:

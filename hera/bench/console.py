@@ -28,7 +28,8 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-from hera.bench.bus import _cpu_seconds, observers_spec
+from hera.bench.bus import observers_spec
+from hera.bench.machine import cpu_seconds
 from hera.client import ClusterClient
 from hera.launcher import node_command
 
@@ -116,12 +117,12 @@ def measure(spec_path: Path, seconds: float, streams: int) -> dict[str, float]:
         env = {**os.environ}
         pids = _node_pids(client)
         time.sleep(2.0)
-        before = {n: _cpu_seconds(p) for n, p in pids.items()}
+        before = {n: cpu_seconds(p) for n, p in pids.items()}
         t0 = time.monotonic()
         time.sleep(seconds)
         span = time.monotonic() - t0
         out["nodes_alone_pct"] = (
-            100 * sum(_cpu_seconds(p) - before[n] for n, p in pids.items()) / span
+            100 * sum(cpu_seconds(p) - before[n] for n, p in pids.items()) / span
         )
         view, url = _view(run_dir, env)
         try:
@@ -147,8 +148,8 @@ def measure(spec_path: Path, seconds: float, streams: int) -> dict[str, float]:
                 )
                 page.wait_for_function("window.hera.firstPointsMs !== null", timeout=20000)
                 time.sleep(2.0)
-                v0 = _cpu_seconds(view.pid)
-                n0 = {n: _cpu_seconds(p) for n, p in pids.items()}
+                v0 = cpu_seconds(view.pid)
+                n0 = {n: cpu_seconds(p) for n, p in pids.items()}
                 p0 = page.evaluate("Object.values(window.hera.points).reduce((a, b) => a + b, 0)")
                 lags = []
                 t0 = time.monotonic()
@@ -164,9 +165,9 @@ def measure(spec_path: Path, seconds: float, streams: int) -> dict[str, float]:
                     lags.append(lag)
                 span = time.monotonic() - t0
                 p1 = page.evaluate("Object.values(window.hera.points).reduce((a, b) => a + b, 0)")
-                out["view_pct"] = 100 * (_cpu_seconds(view.pid) - v0) / span
+                out["view_pct"] = 100 * (cpu_seconds(view.pid) - v0) / span
                 out["nodes_with_view_pct"] = (
-                    100 * sum(_cpu_seconds(p) - n0[n] for n, p in pids.items()) / span
+                    100 * sum(cpu_seconds(p) - n0[n] for n, p in pids.items()) / span
                 )
                 out["points_per_s_per_stream"] = (p1 - p0) / span / streams
                 out["lag_p50_s"] = statistics.median(lags)

@@ -66,10 +66,39 @@ def read_machine() -> CpuTimes | None:
         return None
 
 
+def _times(fields: list[bytes]) -> float:
+    """CPU seconds (user + system) from the fields of ``/proc/<pid>/stat`` after the
+    command's closing parenthesis."""
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _stat(pid: int | str, proc: Path = PROC) -> list[bytes]:
+    """The fields of ``/proc/<pid>/stat`` after the command (which may hold spaces)."""
+    with open(os.path.join(proc, str(pid), "stat"), "rb") as f:
+        return f.read().rsplit(b")", 1)[1].split()
+
+
+def cpu_seconds(pid: int) -> float:
+    """CPU seconds (user + system, every thread) process ``pid`` has used; 0.0 once it is
+    gone."""
+    try:
+        return _times(_stat(pid))
+    except OSError:
+        return 0.0
+
+
+def rss_mb(pid: int) -> float:
+    """Resident memory of process ``pid`` in MB; 0.0 once it is gone."""
+    try:
+        with open(PROC / str(pid) / "statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+    except OSError:
+        return 0.0
+
+
 def process_times(proc: Path = PROC) -> dict[tuple[int, int], float]:
     """CPU seconds (user + system, every thread) of each process now, keyed by (pid, start
     time in ticks since boot), so a pid used again by another process is another key."""
-    tick = os.sysconf("SC_CLK_TCK")
     out: dict[tuple[int, int], float] = {}
     try:
         entries = os.scandir(proc)
@@ -80,9 +109,8 @@ def process_times(proc: Path = PROC) -> dict[tuple[int, int], float]:
             if not e.name.isdigit():
                 continue
             try:
-                with open(os.path.join(e.path, "stat"), "rb") as f:
-                    fields = f.read().rsplit(b")", 1)[1].split()
-                out[(int(e.name), int(fields[19]))] = (int(fields[11]) + int(fields[12])) / tick
+                fields = _stat(e.name, proc)
+                out[(int(e.name), int(fields[19]))] = _times(fields)
             except (OSError, IndexError, ValueError):  # ended meanwhile, or not a process
                 continue
     return out

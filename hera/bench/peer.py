@@ -32,7 +32,6 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import os
 import socket
 import subprocess
 import sys
@@ -46,7 +45,7 @@ from typing import Any
 import msgpack
 
 from hera.bench.latency import LatencyHistogram
-from hera.bench.machine import MachineWindow
+from hera.bench.machine import MachineWindow, cpu_seconds, rss_mb
 from hera.bus import open_session
 from hera.keys import Keys
 from hera.spec import ClusterSpec, load_spec
@@ -185,25 +184,6 @@ def main(argv: list[str]) -> int:
 
 
 # -- the benchmark's side ----------------------------------------------------------------
-def _cpu(pid: int) -> float:
-    """CPU seconds (user + system) process ``pid`` has used; 0 when it is gone."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            fields = f.read().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-    except OSError:
-        return 0.0
-
-
-def _rss_mb(pid: int) -> float:
-    """Resident memory of process ``pid`` (MB, 0 when it is gone)."""
-    try:
-        with open(f"/proc/{pid}/statm") as f:
-            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
-    except OSError:
-        return 0.0
-
-
 def _wait_listening(port: int, procs: list[subprocess.Popen], deadline: float) -> None:
     """Return once 127.0.0.1:``port`` takes connections; RuntimeError when a process of
     ``procs`` ended or ``deadline`` (monotonic) passed first."""
@@ -283,10 +263,10 @@ def measure(spec: ClusterSpec, folder: Path, seconds: float) -> Measured:
             p.stdin.flush()
         time.sleep(max(0.0, start - time.time()))
         window = MachineWindow()
-        c0, t0 = sum(_cpu(p.pid) for p in peers), time.monotonic()
+        c0, t0 = sum(cpu_seconds(p.pid) for p in peers), time.monotonic()
         window.sleep(seconds)
-        c1, t1 = sum(_cpu(p.pid) for p in peers), time.monotonic()
-        rss = [_rss_mb(p.pid) for p in peers]
+        c1, t1 = sum(cpu_seconds(p.pid) for p in peers), time.monotonic()
+        rss = [rss_mb(p.pid) for p in peers]
         readers = []
         for p in peers:
             try:

@@ -50,7 +50,7 @@ import tomllib
 import zenoh
 
 from hera.bench.latency import LatencyHistogram
-from hera.bench.machine import MachineWindow
+from hera.bench.machine import MachineWindow, cpu_seconds
 from hera.bench.security import TLS_HINT, measurable_modes, modes, secure
 from hera.client import ClusterClient
 from hera.launcher import node_command
@@ -174,15 +174,6 @@ def spec_text(
     return "".join(lines)
 
 
-def _cpu(pid: int) -> float:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            fields = f.read().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-    except OSError:
-        return 0.0
-
-
 @contextlib.contextmanager
 def cluster(
     spec: str, security: str = "auth"
@@ -275,9 +266,9 @@ def run(
         status = client.status(timeout=2.0)
         pids = [st["pid"] for st in status.values()]
         window = MachineWindow()
-        c0, t0 = sum(_cpu(p) for p in pids), time.monotonic()
+        c0, t0 = sum(cpu_seconds(p) for p in pids), time.monotonic()
         window.sleep(seconds)
-        c1, t1 = sum(_cpu(p) for p in pids), time.monotonic()
+        c1, t1 = sum(cpu_seconds(p) for p in pids), time.monotonic()
         status = client.status(timeout=3.0)
     readers = []
     for st in status.values():
