@@ -188,3 +188,50 @@ def test_a_hung_shared_step_is_replaced_and_the_others_go_on_in_a_new_thread():
 def test_shared_is_refused_for_synchronised_measures():
     with pytest.raises(MeasureSpecError, match='thread = "shared" is for unsynchronised'):
         make_ctx("s", thread="shared", sync=True)
+
+
+class Journal(Measure):
+    """Its steps (with the deadline its worker set) and its close, each with its instant."""
+
+    def init(self, args, ctx):
+        super().init(args, ctx)
+        self.events = args["events"]
+        self.worker = args["worker"]
+
+    def measure(self):
+        w = self.worker()
+        self.events.append(("step", time.monotonic(), w.step_started - w.stats.lateness[-1]))
+        return [1.0]
+
+    def close(self):
+        self.events.append(("close", time.monotonic()))
+
+
+def test_a_retiring_shared_worker_hands_over_at_its_next_deadline_after_closing():
+    period = 0.05
+    beat = Beat(period, time.monotonic())
+    events: list = []
+    holder: dict = {}
+    done = threading.Event()
+    ctx = make_ctx("j", period=period, thread="shared")
+    w = Worker(
+        Journal,
+        {"events": events, "worker": lambda: holder["w"]},
+        ctx,
+        lambda n, r, g: None,
+        lambda w, e: done.set(),
+        beat=beat,
+    )
+    holder["w"] = w
+    w.start()
+    wait_for(lambda: sum(e[0] == "step" for e in events) >= 3, 5, "three steps")
+    handed: list = []
+    w.retire(lambda old: handed.append((old, threading.current_thread(), time.monotonic())))
+    assert done.wait(5)
+    ((old, thread, t_hand),) = handed
+    assert old is w and thread is w.thread  # in the worker's own thread, before its end report
+    kinds = [e[0] for e in events]
+    assert kinds[-1] == "close" and "close" not in kinds[:-1]  # closed once, no step after
+    last_deadline = max(e[2] for e in events if e[0] == "step")
+    assert t_hand >= events[-1][1] >= last_deadline + period * 0.99  # at the deadline, not before
+    assert beat.members == []
