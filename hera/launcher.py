@@ -50,7 +50,7 @@ from hera.keys import Keys
 from hera.node import EXIT_CONFIG, FATAL
 from hera.panel import estimates_panels
 from hera.plugins import AppIndex
-from hera.ports import free_ports
+from hera.ports import free_ports, port_taken
 from hera.preflight import check_spec
 from hera.rundirs import new_run_dir, prepare_run_dir, state_dir
 from hera.security.access import OPERATOR
@@ -97,24 +97,20 @@ def busy_ports(spec: ClusterSpec, local: set[str] | None = None) -> list[str]:
             continue
         host = part.host or spec.host
         what = "router" if part in spec.routers else "node"
-        with socket.socket() as s:
-            try:
-                s.bind((host, part.port))
-            except OSError as e:
-                out.append(
-                    f"{spec.source}: {what} {part.name!r}: port {part.port} on {host} is not "
-                    f"free ({e.strerror}): change [cluster] base_port or its port"
-                )
+        e = port_taken(host, part.port)
+        if e is not None:
+            out.append(
+                f"{spec.source}: {what} {part.name!r}: port {part.port} on {host} is not "
+                f"free ({e.strerror}): change [cluster] base_port or its port"
+            )
     return out
 
 
 def web_port_problems(port: int, host: str = "127.0.0.1") -> list[str]:
     """The problem with serving the web view on ``host:port``, if any."""
-    with socket.socket() as s:
-        try:
-            s.bind((host, port))
-        except OSError as e:
-            return [f"--web: port {port} on {host} is not free ({e.strerror}): pick another"]
+    e = port_taken(host, port)
+    if e is not None:
+        return [f"--web: port {port} on {host} is not free ({e.strerror}): pick another"]
     return []
 
 

@@ -13,6 +13,7 @@ handed out by the kernel, so only a process that names that very port can take i
 
 from __future__ import annotations
 
+import os
 import random
 import socket
 from pathlib import Path
@@ -74,3 +75,18 @@ def free_ports(
         for s in socks:
             s.close()
     return ports
+
+
+def port_taken(host: str, port: int) -> OSError | None:
+    """Why a server could not listen on ``host:port`` now, or None when it can. The port is
+    bound as a server binds it: with ``SO_REUSEADDR``, as Zenoh's and aiohttp's listeners
+    do, so a port held only by connections in TIME_WAIT (a cluster just stopped: about a
+    minute on Linux) is free, and one another process listens on is not."""
+    with socket.socket() as s:
+        if os.name != "nt":  # on Windows it would let a port be taken from its listener
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((host, port))
+        except OSError as e:
+            return e
+    return None

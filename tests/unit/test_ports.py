@@ -1,5 +1,6 @@
 """The ports a launcher picks for its nodes (hera/ports.py): below the kernel's ephemeral
-range, so no ``bind(0)`` of another process takes one before its node binds it."""
+range, so no ``bind(0)`` of another process takes one before its node binds it; a port a
+stopped cluster left in TIME_WAIT is free for the next one."""
 
 from __future__ import annotations
 
@@ -7,7 +8,9 @@ import random
 import socket
 from pathlib import Path
 
-from hera.ports import IANA_EPHEMERAL, WINDOW, ephemeral_range, free_ports
+import pytest
+
+from hera.ports import IANA_EPHEMERAL, WINDOW, ephemeral_range, free_ports, port_taken
 
 
 def test_the_ports_lie_below_the_ephemeral_range_and_are_free():
@@ -59,3 +62,34 @@ def test_the_range_is_read_from_the_kernel_file(tmp_path: Path):
     bad.write_text("forty\n")
     assert ephemeral_range(bad) == IANA_EPHEMERAL
     assert ephemeral_range(tmp_path / "missing") == IANA_EPHEMERAL
+
+
+def _time_wait_port() -> int:
+    """A loopback port held only by a connection in TIME_WAIT: the server side of an
+    accepted connection closes first, then the client and the listener (which binds as
+    Zenoh's listeners do, with SO_REUSEADDR, which its connections inherit)."""
+    with socket.socket() as listener:
+        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        port = listener.getsockname()[1]
+        client = socket.create_connection(("127.0.0.1", port))
+        conn, _ = listener.accept()
+        conn.close()  # the side that closes first keeps the TIME_WAIT
+        client.recv(1)  # its FIN seen
+        client.close()
+    return port
+
+
+def test_a_port_left_in_time_wait_by_a_stopped_cluster_is_free_for_a_server():
+    port = _time_wait_port()
+    with socket.socket() as plain, pytest.raises(OSError):  # what a plain bind says
+        plain.bind(("127.0.0.1", port))
+    assert port_taken("127.0.0.1", port) is None
+    with socket.socket() as server:  # and a server really listens there
+        server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        server.bind(("127.0.0.1", port))
+        server.listen()
+        # while it listens, the port is taken
+        e = port_taken("127.0.0.1", port)
+        assert e is not None and e.strerror == "Address already in use"
