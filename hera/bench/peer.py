@@ -198,20 +198,23 @@ def _wait_listening(port: int, procs: list[subprocess.Popen], deadline: float) -
 @dataclass
 class Measured:
     """What :func:`measure` found: each peer's figures (``received``, ``expected``,
-    ``bins``), the CPU seconds the peers used in ``elapsed`` seconds, their RSS (MB) and
-    the machine's window."""
+    ``bins``), the CPU seconds the peers used in ``elapsed`` seconds, their RSS (MB), the
+    machine's window and the routers' RSS (MB)."""
 
     readers: list[dict[str, Any]]
     cpu_seconds: float
     elapsed: float
     rss: list[float]
     window: MachineWindow
+    router_rss: list[float]
 
 
 @contextlib.contextmanager
-def _processes(spec: ClusterSpec, path: Path) -> Iterator[list[subprocess.Popen]]:
-    """The spec's routers (``hera router``, each listening before the peers start), then
-    one peer per node; all stopped on the way out."""
+def _processes(
+    spec: ClusterSpec, path: Path
+) -> Iterator[tuple[list[subprocess.Popen], list[subprocess.Popen]]]:
+    """The spec's routers (``hera router``, each listening before the peers start) and one
+    peer per node; all stopped on the way out."""
     from hera.launcher import node_command
 
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
@@ -233,8 +236,9 @@ def _processes(spec: ClusterSpec, path: Path) -> Iterator[list[subprocess.Popen]
             )
             for node in spec.nodes
         ]
+        routers = procs[:]
         procs += peers
-        yield peers
+        yield routers, peers
     finally:
         for p in procs:
             if p.poll() is None:
@@ -253,7 +257,7 @@ def measure(spec: ClusterSpec, folder: Path, seconds: float) -> Measured:
     peer said it publishes. RuntimeError when a peer or router does not come up or end."""
     path = folder / "cluster.json"
     path.write_text(spec.with_security(auth=False, tls=False, access_control=False).to_json())
-    with _processes(spec, path) as peers:
+    with _processes(spec, path) as (routers, peers):
         for p in peers:  # EOF when it failed (its exit code says so)
             if p.stdout.readline().strip() != "ready":
                 raise RuntimeError(f"a zenoh peer exited with code {p.wait(10)}")
@@ -267,6 +271,7 @@ def measure(spec: ClusterSpec, folder: Path, seconds: float) -> Measured:
         window.sleep(seconds)
         c1, t1 = sum(cpu_seconds(p.pid) for p in peers), time.monotonic()
         rss = [rss_mb(p.pid) for p in peers]
+        router_rss = [rss_mb(p.pid) for p in routers]
         readers = []
         for p in peers:
             try:
@@ -278,7 +283,7 @@ def measure(spec: ClusterSpec, folder: Path, seconds: float) -> Measured:
             r = json.loads(out.splitlines()[-1])
             r["bins"] = {int(k): int(v) for k, v in r["bins"].items()}
             readers.append(r)
-    return Measured(readers, c1 - c0, t1 - t0, rss, window)
+    return Measured(readers, c1 - c0, t1 - t0, rss, window, router_rss)
 
 
 if __name__ == "__main__":  # pragma: no cover

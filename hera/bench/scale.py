@@ -35,6 +35,8 @@ from __future__ import annotations
 import argparse
 import contextlib
 import itertools
+import json
+import math
 import os
 import statistics
 import subprocess
@@ -50,7 +52,7 @@ import tomllib
 import zenoh
 
 from hera.bench.latency import LatencyHistogram
-from hera.bench.machine import MachineWindow, cpu_seconds
+from hera.bench.machine import MachineWindow, cpu_seconds, rss_mb
 from hera.bench.security import TLS_HINT, measurable_modes, modes, secure
 from hera.client import ClusterClient
 from hera.launcher import node_command
@@ -220,10 +222,11 @@ def figures(
     elapsed: float,
     rss: list[float],
     window: MachineWindow,
+    router_rss: list[float] = (),
 ) -> dict[str, float]:
     """The row of one run from its readers (``received``, ``expected``, ``bins``: a latency
     histogram's non-empty bins), the CPU seconds its nodes used in ``elapsed`` seconds,
-    their RSS (MB) and the machine's window."""
+    their RSS (MB), the machine's window and its routers' RSS (MB)."""
     pooled = LatencyHistogram()
     p50s, p99s = [], []
     for r in readers:
@@ -247,6 +250,7 @@ def figures(
         "cpu_node_pct": cpu / len(rss),
         "cpu_machine_pct": cpu / (os.cpu_count() or 1),
         "rss_mb": statistics.mean(rss),
+        "router_rss_mb": max(router_rss) if router_rss else nan,
         **(window.figures() or NO_MACHINE),
     }
 
@@ -256,7 +260,7 @@ def run(
 ) -> dict[str, float]:
     """One configuration; its figures."""
     warmup = 5.0
-    with cluster(spec_text(n, topology, warmup, phases), security) as (client, _proc, _tmp):
+    with cluster(spec_text(n, topology, warmup, phases), security) as (client, _proc, tmp):
         deadline = time.monotonic() + 90
         while len(client.status(timeout=2.0)) < n:
             if time.monotonic() > deadline:
@@ -270,6 +274,8 @@ def run(
         window.sleep(seconds)
         c1, t1 = sum(cpu_seconds(p) for p in pids), time.monotonic()
         status = client.status(timeout=3.0)
+        launched = json.loads((tmp / "run" / "launcher.json").read_text())
+        router_rss = [rss_mb(r["pid"]) for r in launched["routers"].values() if r["pid"]]
     readers = []
     for st in status.values():
         c = st["measures"]["reader"]["counters"]
@@ -278,7 +284,7 @@ def run(
             {"received": c.get("received", 0), "expected": c.get("expected", 0), "bins": bins}
         )
     rss = [st.get("rss_mb") or 0.0 for st in status.values()]
-    return figures(readers, c1 - c0, t1 - t0, rss, window)
+    return figures(readers, c1 - c0, t1 - t0, rss, window, router_rss)
 
 
 def peer_run(n: int, topology: str, seconds: float, phases: str = "grid") -> dict[str, float]:
@@ -291,7 +297,7 @@ def peer_run(n: int, topology: str, seconds: float, phases: str = "grid") -> dic
     spec = parse_spec(tomllib.loads(spec_text(n, topology, 0.0, phases, ports=True)), "scale")
     with tempfile.TemporaryDirectory(prefix="hera-scale-peer-") as tmp:
         m = measure(spec, Path(tmp), seconds)
-    return figures(m.readers, m.cpu_seconds, m.elapsed, m.rss, m.window)
+    return figures(m.readers, m.cpu_seconds, m.elapsed, m.rss, m.window, m.router_rss)
 
 
 def main(argv: list[str]) -> int:
@@ -337,7 +343,7 @@ def main(argv: list[str]) -> int:
     head = (
         f"{'nodes':>5} {'topology':<8} {'phases':<9} {'stack':<10} {'delivered %':>11} "
         f"{'p50 ms':>7} {'p99 ms':>7} {'p99 all':>7} {'CPU/node %':>10} {'machine %':>9} "
-        f"{'RSS MB':>6} {'busy %':>6} {'steal %':>7} {'worst':>5}"
+        f"{'RSS MB':>6} {'router':>6} {'busy %':>6} {'steal %':>7} {'worst':>5}"
     )
     print(head, flush=True)
     stacks = [f"hera/{sec}" for sec in securities] + ([PEER] if args.peer else [])
@@ -377,9 +383,15 @@ def _row(r: dict[str, float]) -> str:
     return (
         f"{r['delivered_pct']:>11.3f} {r['p50_ms']:>7.2f} "
         f"{r['p99_ms']:>7.2f} {r['p99_all_ms']:>7.2f} {r['cpu_node_pct']:>10.1f} "
-        f"{r['cpu_machine_pct']:>9.1f} {r['rss_mb']:>6.0f} {r['busy_pct']:>6.1f} "
+        f"{r['cpu_machine_pct']:>9.1f} {r['rss_mb']:>6.0f} {_mb(r['router_rss_mb'])} "
+        f"{r['busy_pct']:>6.1f} "
         f"{r['steal_pct']:>7.1f} {r['worst_steal_pct']:>5.1f}"
     )
+
+
+def _mb(x: float) -> str:
+    """A router's RSS in the table, or "-" without routers (a mesh)."""
+    return f"{'-':>6}" if math.isnan(x) else f"{x:>6.0f}"
 
 
 def _ratio(r: dict[str, float], peer: dict[str, float]) -> str:

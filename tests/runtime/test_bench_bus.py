@@ -49,15 +49,16 @@ def test_bench_scale_quick_runs_behind_a_router_with_mutual_tls_and_its_zenoh_pe
     )
     assert out.returncode == 0, out.stderr[-3000:]
     lines = [line.split() for line in out.stdout.splitlines() if line.lstrip().startswith("8 ")]
-    rows = {r[3]: r for r in lines if len(r) == 14}  # the table: hera, then its peer
+    rows = {r[3]: r for r in lines if len(r) == 15}  # the table: hera, then its peer
     assert list(rows) == ["hera/tls", "zenoh"], out.stdout
     for r in rows.values():
         assert r[:3] == ["8", "routers", "grid"], r
         assert float(r[4]) > 99.0, out.stdout  # delivered %, a number: not "failed: ..."
-        busy, steal, worst = (float(x) for x in r[11:])  # the whole machine's figures
+        busy, steal, worst = (float(x) for x in r[12:])  # the whole machine's figures
         assert 0.0 < busy <= 100.0 and 0.0 <= steal <= worst <= 100.0, r
+        assert float(r[10]) > 10 and float(r[11]) > 10, r  # node and router memory, MB
     # the busy machine holds at least the processes measured on it
-    assert all(float(r[11]) >= 0.9 * float(r[9]) for r in rows.values()), rows
+    assert all(float(r[12]) >= 0.9 * float(r[9]) for r in rows.values()), rows
     ratios = [r for r in lines if len(r) == 8]
     assert len(ratios) == 1 and ratios[0][3] == "hera/tls", out.stdout
     cpu = float(rows["hera/tls"][8]) / float(rows["zenoh"][8])
