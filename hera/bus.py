@@ -38,6 +38,18 @@ healed partition forms that much sooner, for one failed TCP dial per second to a
 """
 
 
+SHARED_MEMORY = False
+"""Zenoh's shared-memory transport, off. On by default in Zenoh, it gives a session that
+sends a message of 3 KB or more (``transport_optimization``: a node's status reply, an args
+pull) a 16 MB pool in ``/dev/shm`` and makes every router and peer of the host that
+forwards from it map that pool. Measured, 32 nodes with 4 streams behind two routers:
+17.7 MB of each node's RSS was that pool, 584 MB of ``/dev/shm`` in all, and a router
+mapped 459 MB of them (RSS 560-660 MB; 40 MB with the same traffic from sessions that send
+no such message). hera's messages are small and its large ones rare, so copying them is
+cheaper than the pools. A spec can turn it on again through the bus overrides
+(``zenoh = {"transport/shared_memory/enabled": true}``)."""
+
+
 @dataclass(frozen=True)
 class BusConfig:
     """How one process joins the cluster's bus."""
@@ -62,7 +74,7 @@ class BusConfig:
 
     def to_zenoh(self) -> zenoh.Config:
         """Build the zenoh.Config: explicit endpoints, :data:`CONNECT_RETRY`, no multicast
-        scouting, our lease."""
+        scouting, our lease, shared memory as :data:`SHARED_MEMORY` says; then ``extra``."""
         cfg = zenoh.Config()
         cfg.insert_json5("mode", json.dumps(self.mode))
         if self.mode != "client":
@@ -72,6 +84,7 @@ class BusConfig:
         cfg.insert_json5("scouting/multicast/enabled", "false")
         cfg.insert_json5("transport/link/tx/lease", str(int(self.lease_ms)))
         cfg.insert_json5("transport/link/tx/keep_alive", "4")
+        cfg.insert_json5("transport/shared_memory/enabled", json.dumps(SHARED_MEMORY))
         for key, value in self.extra.items():
             cfg.insert_json5(key, json.dumps(value))
         return cfg

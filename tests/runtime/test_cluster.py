@@ -482,3 +482,23 @@ def test_shared_measures_fail_and_recover_alone_on_a_real_node(cluster):
     assert c.control("a", "start", {"measure": "obs3"})["state"] == "running"
     wait_for(lambda: published("a")["obs3"] > before["obs3"] + 5, 5, "obs3 stepping again")
     assert all(s["restarts"] == 0 for s in c.status("b")["measures"].values())
+
+
+def shm_maps(pid: int) -> list[str]:
+    """The Zenoh shared-memory segments process ``pid`` has mapped."""
+    with open(f"/proc/{pid}/maps") as f:
+        return sorted({line.split()[-1] for line in f if line.rstrip().endswith(".zenoh")})
+
+
+def test_no_node_maps_a_shared_memory_pool_even_after_large_replies(cluster, tmp_path):
+    # a status reply this large is one Zenoh would send through a 16 MB pool in /dev/shm,
+    # mapped by the node and by every process that takes it, were shared memory on
+    spec = five_nodes(tmp_path).replace('name = "five"', 'name = "shm"')
+    c = cluster(spec.replace("count = 2", "count = 14"))  # 15 measures: a large status
+    seen_everywhere(c)
+    sizes = [len(msgpack.packb(c.status(n.name))) for n in c.client.spec.nodes]
+    assert min(sizes) >= 3072, sizes  # Zenoh's threshold for its shared-memory transport
+    wait_for(lambda: len(c.control("n2", "args", {})["args"]) == 5, 5, "replicated args")
+    assert {n.name: shm_maps(c.pid(n.name)) for n in c.client.spec.nodes} == {
+        n.name: [] for n in c.client.spec.nodes
+    }
