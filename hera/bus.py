@@ -46,8 +46,8 @@ forwards from it map that pool. Measured, 32 nodes with 4 streams behind two rou
 17.7 MB of each node's RSS was that pool, 584 MB of ``/dev/shm`` in all, and a router
 mapped 459 MB of them (RSS 560-660 MB; 40 MB with the same traffic from sessions that send
 no such message). hera's messages are small and its large ones rare, so copying them is
-cheaper than the pools. A spec can turn it on again through the bus overrides
-(``zenoh = {"transport/shared_memory/enabled": true}``)."""
+cheaper than the pools. A node turns it on again through the bus overrides file
+(:func:`with_overrides`: ``"zenoh": {"transport/shared_memory/enabled": true}``)."""
 
 
 @dataclass(frozen=True)
