@@ -10,6 +10,7 @@ import time
 import pytest
 from harness import wait_for
 from nodes_helpers import make_ctx
+from retire_checks import retire_and_check
 
 from hera.beat import Beat
 from hera.measure import Measure, MeasureSpecError
@@ -225,13 +226,5 @@ def test_a_retiring_shared_worker_hands_over_at_its_next_deadline_after_closing(
     holder["w"] = w
     w.start()
     wait_for(lambda: sum(e[0] == "step" for e in events) >= 3, 5, "three steps")
-    handed: list = []
-    w.retire(lambda old: handed.append((old, threading.current_thread(), time.monotonic())))
-    assert done.wait(5)
-    ((old, thread, t_hand),) = handed
-    assert old is w and thread is w.thread  # in the worker's own thread, before its end report
-    kinds = [e[0] for e in events]
-    assert kinds[-1] == "close" and "close" not in kinds[:-1]  # closed once, no step after
-    last_deadline = max(e[2] for e in events if e[0] == "step")
-    assert t_hand >= events[-1][1] >= last_deadline + period * 0.99  # at the deadline, not before
+    retire_and_check(w, events, done, period)
     assert beat.members == []

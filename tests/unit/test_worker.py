@@ -6,6 +6,7 @@ import threading
 import time
 
 from nodes_helpers import make_ctx
+from retire_checks import retire_and_check
 
 from hera.measure import Measure, Reading
 from hera.worker import Worker, on_grid, wall_grid
@@ -254,15 +255,7 @@ def test_a_retiring_worker_hands_over_at_its_next_deadline_after_closing():
     w, events, done = start_journal(period)
     while sum(e[0] == "step" for e in events) < 3:
         time.sleep(0.001)
-    handed: list = []
-    w.retire(lambda old: handed.append((old, threading.current_thread(), time.monotonic())))
-    assert done.wait(5)
-    ((old, thread, t_hand),) = handed
-    assert old is w and thread is w.thread  # in the worker's own thread, before its end report
-    kinds = [e[0] for e in events]
-    assert kinds[-1] == "close" and "close" not in kinds[:-1]  # closed once, no step after
-    last_deadline = max(e[2] for e in events if e[0] == "step")
-    assert t_hand >= events[-1][1] >= last_deadline + period * 0.99  # at the deadline, not before
+    retire_and_check(w, events, done, period)
 
 
 def test_a_retire_taken_back_before_the_deadline_leaves_the_worker_stepping():
