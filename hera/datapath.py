@@ -122,9 +122,7 @@ class DataPath:
                 return
             for n in names:
                 if n not in self._wanted:
-                    name, _, node = n.partition("/")
-                    pattern = f"{name[:-1]}$*" if name.endswith("*") else name
-                    key = self.keys.data(pattern, node or "*")
+                    key = self.keys.data_read(n)
                     self._subs[n] = self._session.declare_subscriber(key, self.on_data)
                     self._wanted.add(n)
 

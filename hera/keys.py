@@ -57,6 +57,13 @@ class Keys:
     def data(self, name: str = "*", node: str = "*") -> str:
         return f"{self.prefix}/data/{name}/{node}"
 
+    def data_read(self, name: str) -> str:
+        """The data key expression of a read: ``name``, ``prefix*`` (every name starting
+        with prefix) or ``name/node`` (one sender only)."""
+        name, _, node = name.partition("/")
+        pattern = f"{name[:-1]}$*" if name.endswith("*") else name
+        return self.data(pattern, node or "*")
+
     def parse_data(self, key: str) -> tuple[str, str]:
         """Return ``(name, node)`` of a data key; ValueError if ``key`` is not one."""
         head = f"{self.prefix}/data/"

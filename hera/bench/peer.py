@@ -125,13 +125,6 @@ def plan(spec: ClusterSpec, node: str) -> Plan:
     return out
 
 
-def read_key(keys: Keys, name: str) -> str:
-    """The key expression of a read, as a node's data path subscribes to it."""
-    name, _, node = name.partition("/")
-    pattern = f"{name[:-1]}$*" if name.endswith("*") else name
-    return keys.data(pattern, node or "*")
-
-
 def publish(pubs: list[Any], period: float, offset: float, stop: threading.Event) -> None:
     """Put the next sample of every publisher at each instant ``offset`` past a multiple of
     ``period`` on the wall clock, until ``stop`` is set: one wake for all of them."""
@@ -164,7 +157,7 @@ def main(argv: list[str]) -> int:
     try:
         reads = ["**"] if traffic.reads is None else traffic.reads
         for r in reads:
-            key = f"{keys.prefix}/data/**" if r == "**" else read_key(keys, r)
+            key = f"{keys.prefix}/data/**" if r == "**" else keys.data_read(r)
             session.declare_subscriber(key, counts.on_sample)
         for (period, offset), names in traffic.groups.items():
             pubs = [session.declare_publisher(keys.data(name, node)) for name in names]

@@ -11,7 +11,7 @@ import msgpack
 import pytest
 import tomllib
 
-from hera.bench.peer import Counts, plan, publish, read_key
+from hera.bench.peer import Counts, plan, publish
 from hera.bench.scale import PERIOD, STREAMS, spec_text
 from hera.keys import Keys
 from hera.spec import load_spec, parse_spec
@@ -54,9 +54,9 @@ sync = true
 
 def test_reads_subscribe_as_a_nodes_data_path():
     k = Keys("c")
-    assert read_key(k, "obs*") == "hera/c/data/obs$*/*"
-    assert read_key(k, "s1/n4") == "hera/c/data/s1/n4"
-    assert read_key(k, "temp") == "hera/c/data/temp/*"
+    assert k.data_read("obs*") == "hera/c/data/obs$*/*"
+    assert k.data_read("s1/n4") == "hera/c/data/s1/n4"
+    assert k.data_read("temp") == "hera/c/data/temp/*"
 
 
 class _Sample:
