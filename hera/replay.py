@@ -39,13 +39,8 @@ from hera.recordings import (
 )
 from hera.schema import did_you_mean
 from hera.smoothing import NotSmoothable, SmoothedRun, smoothed_dir
-from hera.spec import ClusterSpec, load_spec
+from hera.spec import ClusterSpec, load_spec, tomllib
 from hera.store import Sample
-
-try:
-    import tomllib
-except ModuleNotFoundError:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
 
 
 def model_args_from_spec(spec: ClusterSpec) -> dict[str, tuple[str, dict[str, Any]]]:

@@ -48,7 +48,6 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-import tomllib
 import zenoh
 
 from hera.bench.latency import LatencyHistogram
@@ -292,7 +291,7 @@ def peer_run(n: int, topology: str, seconds: float, phases: str = "grid") -> dic
     session configured as hera's, no hera runtime on it; routers ``hera router``), without
     security; its figures, as :func:`run`'s."""
     from hera.bench.peer import measure
-    from hera.spec import parse_spec
+    from hera.spec import parse_spec, tomllib
 
     spec = parse_spec(tomllib.loads(spec_text(n, topology, 0.0, phases, ports=True)), "scale")
     with tempfile.TemporaryDirectory(prefix="hera-scale-peer-") as tmp:

@@ -11,8 +11,6 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
-import tomllib
-
 MODES = {
     "none": "[security]\nauth = false\naccess_control = false\n",
     "auth": "",
@@ -51,7 +49,7 @@ def secure(text: str, mode: str, certs: str | Path) -> str:
     if mode == "tls":
         from hera.security.certs import make_certs  # the tls extra
         from hera.security.credentials import cert_hosts
-        from hera.spec import parse_spec
+        from hera.spec import parse_spec, tomllib
 
         spec = parse_spec(tomllib.loads(text), "benchmark spec")
         make_certs(certs, spec.name, cert_hosts(spec))

@@ -17,7 +17,6 @@ and the key (:class:`CampaignError`, exit code 2), before anything starts.
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -35,11 +34,7 @@ from hera.schema import (
     list_of,
     number,
 )
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
+from hera.spec import tomllib
 
 KINDS = (
     "crash",

@@ -35,7 +35,7 @@ def _installed_layout(dest: Path) -> Path:
 
 def _lint(tree: Path) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [str(LINT), str(ROOT / "pyproject.toml"), "--no-cache"],
+        [str(LINT), "--config", str(ROOT / "pyproject.toml"), "--no-cache"],
         cwd=tree,
         env={"PYTHONPATH": str(tree), "PATH": "/usr/bin:/bin"},
         capture_output=True,

@@ -9,12 +9,11 @@ from pathlib import Path
 
 import msgpack
 import pytest
-import tomllib
 
 from hera.bench.peer import Counts, plan, publish
 from hera.bench.scale import PERIOD, STREAMS, spec_text
 from hera.keys import Keys
-from hera.spec import load_spec, parse_spec
+from hera.spec import load_spec, parse_spec, tomllib
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import tomllib
-
 from hera.bench.scale import PERIOD, STREAMS, main, spec_text
 from hera.bench.security import secure
-from hera.spec import parse_spec
+from hera.spec import parse_spec, tomllib
 
 
 def _offsets(text: str) -> dict[str, set]:
