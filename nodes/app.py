@@ -21,14 +21,11 @@ class Simulator(Application):
 
     def check_world(self, world: Mapping[str, Any]) -> list[str]:
         """The scenario, its keys and the environment must be ones the simulator knows."""
-        from hera.nodes.world import environment, epoch_of, make_scenario
+        from hera.nodes.world import world_problems
 
-        try:
-            make_scenario(world)
-            environment(world)
-            epoch_of(world)
-        except ValueError as e:
-            return [str(e)]
+        problems = world_problems(world)
+        if problems:
+            return problems
         sonars = world.get("sonars", {})
         if not isinstance(sonars, Mapping) or not all(
             isinstance(v, Mapping) for v in sonars.values()

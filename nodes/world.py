@@ -711,6 +711,18 @@ def epoch_of(world: Mapping[str, Any]) -> float:
     return _f(world, "epoch", 0.0)
 
 
+def world_problems(world: Mapping[str, Any]) -> list[str]:
+    """What refuses a ``[world]`` table, one sentence each; [] when the simulator knows its
+    scenario, the scenario's keys and values, the environment and the epoch."""
+    try:
+        make_scenario(world)
+        environment(world)
+        epoch_of(world)
+    except ValueError as e:
+        return [str(e)]
+    return []
+
+
 def state_at(scenario: Scenario, epoch: float, t: float) -> State:
     """The :class:`State` of ``scenario`` at epoch time ``t``."""
     m = scenario.motion(t - epoch)

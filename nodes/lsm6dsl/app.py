@@ -40,15 +40,10 @@ class Lsm6dslBoards(Application):
     measures = ("lsm6dsl",)
 
     def check_world(self, world: Mapping[str, Any]) -> list[str]:
-        """The scenario and its keys must be ones the simulator knows."""
-        from hera.nodes.world import epoch_of, make_scenario
+        """The scenario, its keys and the environment must be ones the simulator knows."""
+        from hera.nodes.world import world_problems
 
-        try:
-            make_scenario(world)
-            epoch_of(world)
-        except ValueError as e:
-            return [str(e)]
-        return []
+        return world_problems(world)
 
     def verbs(self) -> Mapping[str, Verb]:
         return {"gyro_calibration": gyro_calibration}

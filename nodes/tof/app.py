@@ -20,12 +20,7 @@ class Vl53l1Boards(Application):
     measures = ("vl53l1",)
 
     def check_world(self, world: Mapping[str, Any]) -> list[str]:
-        """The scenario and its keys must be ones the simulator knows."""
-        from hera.nodes.world import epoch_of, make_scenario
+        """The scenario, its keys and the environment must be ones the simulator knows."""
+        from hera.nodes.world import world_problems
 
-        try:
-            make_scenario(world)
-            epoch_of(world)
-        except ValueError as e:
-            return [str(e)]
-        return []
+        return world_problems(world)

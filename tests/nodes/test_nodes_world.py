@@ -6,8 +6,13 @@ import math
 
 import pytest
 
+from hera.examples import examples
 from hera.nodes import geometry as gm
+from hera.nodes.app import Simulator
+from hera.nodes.lsm6dsl.app import Lsm6dslBoards
+from hera.nodes.tof.app import Vl53l1Boards
 from hera.nodes.world import SCENARIOS, make_scenario, state_at, truth_at
+from hera.spec import load_spec
 
 H = 1e-4
 
@@ -82,3 +87,20 @@ def test_bad_worlds_are_refused_clearly() -> None:
         make_scenario({"scenario": "train", "radios": 1})
     with pytest.raises(ValueError, match="number"):
         make_scenario({"scenario": "train", "omega": "fast"})
+
+
+@pytest.mark.parametrize(
+    ("app", "example"),
+    [(Simulator, "train"), (Vl53l1Boards, "tof_height"), (Lsm6dslBoards, "tilt")],
+)
+def test_every_simulated_board_application_checks_the_whole_world(app, example) -> None:
+    world = load_spec(examples()[example]).world
+    assert app().check_world(world) == []
+    for bad, says in [
+        ({"scenario": "boat"}, "unknown world scenario 'boat'"),
+        ({**world, "radios": 1}, "unknown world keys for scenario"),
+        ({**world, "altitude": "high"}, "altitude"),
+        ({**world, "epoch": "now"}, "epoch"),
+    ]:
+        problems = app().check_world(bad)
+        assert len(problems) == 1 and says in problems[0], (bad, problems)
