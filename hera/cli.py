@@ -53,6 +53,46 @@ def _command(sub, name: str, summary: str, example: str) -> argparse.ArgumentPar
     )
 
 
+VERSIONS_OF = ("eclipse-zenoh", "numpy", "msgpack", "numba")
+"""The distributions ``hera --version`` names besides hera's own: what a bug report needs."""
+
+
+def version_line() -> str:
+    """``hera X.Y.Z (Python A.B.C; eclipse-zenoh ..., numpy ..., msgpack ..., numba ...)``,
+    read from the installed distributions' metadata (nothing is imported); a distribution
+    that is not installed reads "numba none"."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    from hera import __version__
+
+    parts = []
+    for dist in VERSIONS_OF:
+        try:
+            parts.append(f"{dist} {version(dist)}")
+        except PackageNotFoundError:
+            parts.append(f"{dist} none")
+    py = ".".join(str(v) for v in sys.version_info[:3])
+    return f"hera {__version__} (Python {py}; {', '.join(parts)})"
+
+
+class _Version(argparse.Action):
+    """``--version``: print :func:`version_line` and exit 0 (argparse's own action would
+    need the line before parsing, which would read the metadata on every command)."""
+
+    def __init__(self, option_strings: list[str], dest: str, **kwargs: object) -> None:
+        super().__init__(option_strings, dest, nargs=0, help="print the versions and exit")
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: object,
+        option_string: str | None = None,
+    ) -> None:
+        print(version_line())
+        parser.exit()
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="hera",
@@ -60,6 +100,7 @@ def _parser() -> argparse.ArgumentParser:
         epilog=HELP_EXAMPLES["start"],
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    p.add_argument("--version", action=_Version)
     sub = p.add_subparsers(dest="cmd", required=True, metavar="COMMAND")
 
     up = _command(
