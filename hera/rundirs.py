@@ -27,11 +27,20 @@ class RunDirError(ValueError):
     """A run directory that cannot be used; the message says why and what to do."""
 
 
+def _make(path: Path, what: str) -> None:
+    """``path`` and its parents made (an existing folder is fine); RunDirError naming the
+    folder and the system's reason when it cannot be (read-only, not a folder, no space)."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise RunDirError(f"cannot make the {what} {path}: {e.strerror or e}") from None
+
+
 def new_run_dir(cluster: str, base: Path = BASE, now: float | None = None) -> Path:
     """A new, empty run directory for ``cluster`` under ``base`` (created), and the
     ``<base>/<cluster>`` link pointed at it (left alone if a real folder has that name)."""
     stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(time.time() if now is None else now))
-    base.mkdir(parents=True, exist_ok=True)
+    _make(base, "folder of runs")
     run = base / f"{cluster}-{stamp}"
     n = 1
     while True:
@@ -41,6 +50,8 @@ def new_run_dir(cluster: str, base: Path = BASE, now: float | None = None) -> Pa
         except FileExistsError:
             n += 1
             run = base / f"{cluster}-{stamp}-{n}"
+        except OSError as e:
+            raise RunDirError(f"cannot make the run directory {run}: {e.strerror or e}") from None
     latest = base / cluster
     if latest.is_symlink() or not latest.exists():
         tmp = base / f".{cluster}.link-{os.getpid()}"
@@ -76,7 +87,7 @@ def prepare_run_dir(path: Path, overwrite: bool = False) -> Path:
                 shutil.rmtree(entry)
             else:
                 entry.unlink()
-    path.mkdir(parents=True, exist_ok=True)
+    _make(path, "run directory")
     return path.resolve()
 
 

@@ -215,3 +215,15 @@ def test_a_node_run_by_hand_checks_its_whole_spec_first(tmp_path):
     spec.write_text(spec.read_text().replace("prefxi", "prefix"))
     out = hera(tmp_path, "node", str(spec), "--node", "a", "--check-only")
     assert (out.returncode, out.stderr) == (0, "")
+
+
+def test_a_run_directory_that_cannot_be_made_is_one_sentence_and_nothing_starts(tmp_path):
+    spec = tmp_path / "s.toml"
+    spec.write_text(SPEC.format(name="nowhere"))
+    (tmp_path / "file").write_text("x")
+    out = hera(tmp_path, "up", str(spec), "--run-dir", str(tmp_path / "file" / "run"))
+    assert out.returncode == 2
+    assert out.stderr == (
+        f"hera up: cannot make the run directory {tmp_path}/file/run: Not a directory\n"
+    )
+    assert not (tmp_path / "hera-run").exists()
