@@ -9,7 +9,7 @@ import logging
 import sys
 import time
 
-from hera import tools
+from hera import cliargs, tools
 from hera.client import ClusterClient, find_run_dir, pid_alive
 
 BENCHES = ("bus", "kalman", "sync", "scale", "console", "tilt", "ahrs")
@@ -109,7 +109,7 @@ def _parser() -> argparse.ArgumentParser:
     up.add_argument("spec", help="cluster spec (TOML file, or an example's name: hera examples)")
     up.add_argument(
         "--duration",
-        type=float,
+        type=cliargs.positive,
         help="stop after this many seconds of every node up (from the start if a node is "
         "not up within 30 s)",
     )
@@ -119,7 +119,9 @@ def _parser() -> argparse.ArgumentParser:
         "linked from hera-run/<cluster>)",
     )
     up.add_argument("--overwrite", action="store_true", help="replace a previous run in --run-dir")
-    up.add_argument("--interval", type=float, default=1.0, help="status refresh period, s")
+    up.add_argument(
+        "--interval", type=cliargs.positive, default=1.0, help="status refresh period, s"
+    )
     up.add_argument(
         "--only",
         help="comma-separated nodes and routers to run on this host (default: all of them)",
@@ -129,7 +131,7 @@ def _parser() -> argparse.ArgumentParser:
     up.add_argument(
         "--web",
         nargs="?",
-        type=int,
+        type=cliargs.port,
         const=8765,
         metavar="PORT",
         help="serve the live web view on 127.0.0.1:PORT (default 8765; 0: any free port)",
@@ -146,7 +148,7 @@ def _parser() -> argparse.ArgumentParser:
     node.add_argument("--node", required=True, help="name of the node to run")
     node.add_argument("--run-dir", help="run directory for logs and recordings")
     node.add_argument("--state-dir", help="where the node persists its args (calibrations)")
-    node.add_argument("--parent-pid", type=int, help="stop when this process is gone")
+    node.add_argument("--parent-pid", type=cliargs.count, help="stop when this process is gone")
     node.add_argument("--log-level", default="INFO")
     node.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
     node.add_argument(
@@ -166,7 +168,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     rt.add_argument("spec", help="cluster spec (TOML, an example's name, or a cluster.json)")
     rt.add_argument("--name", required=True, help="name of the router to run")
-    rt.add_argument("--parent-pid", type=int, help="stop when this process is gone")
+    rt.add_argument("--parent-pid", type=cliargs.count, help="stop when this process is gone")
     rt.add_argument("--log-level", default="INFO")
     rt.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
 
@@ -204,10 +206,14 @@ def _parser() -> argparse.ArgumentParser:
         "spikes, bias, disconnect, clear), or the value (clock: s, loss: share, delay: ms)",
     )
     inj.add_argument("--board", help="board: the board id, <node>/<board>")
-    inj.add_argument("--for", dest="seconds", type=float, help="board: how long it lasts, s")
+    inj.add_argument(
+        "--for", dest="seconds", type=cliargs.positive, help="board: how long it lasts, s"
+    )
     inj.add_argument("--param", action="append", help="board: a fault parameter KEY=VALUE")
     inj.add_argument("--peers", help="network faults: only the links to these nodes (a,b)")
-    inj.add_argument("--jitter", type=float, default=0.0, help="delay: +/- this much, ms")
+    inj.add_argument(
+        "--jitter", type=cliargs.non_negative, default=0.0, help="delay: +/- this much, ms"
+    )
     for s in (st, dn, inj):
         s.add_argument("--run-dir", help="run directory of the cluster (on this host)")
         s.add_argument("--cluster", help="name of the cluster, if several run")
@@ -281,7 +287,7 @@ def _parser() -> argparse.ArgumentParser:
     ev.add_argument("run_dir")
     ev.add_argument(
         "--settle",
-        type=float,
+        type=cliargs.non_negative,
         default=10.0,
         help="s after a model's first estimate before settled errors count (default 10)",
     )
@@ -289,7 +295,7 @@ def _parser() -> argparse.ArgumentParser:
         "--after",
         "--omega-after",
         dest="after",
-        type=float,
+        type=cliargs.non_negative,
         default=3.0,
         help="s after a model's first estimate before its errors count (default 3)",
     )
@@ -318,7 +324,11 @@ def _parser() -> argparse.ArgumentParser:
         "campaign", help="campaign file, or a shipped one: thesis-ch5, partitions, nemesis, manual"
     )
     cp.add_argument("--run-dir", help="campaign directory (default: a new hera-run/campaign-*)")
-    cp.add_argument("--seed", type=int, help="seed of the random choices (default: a new one)")
+    cp.add_argument(
+        "--seed",
+        type=cliargs.non_negative_int,
+        help="seed of the random choices (default: a new one)",
+    )
     cp.add_argument("--short", action="store_true", help="the campaign's short version")
     cp.add_argument(
         "--attach", action="store_true", help="use the running cluster of SPEC (no network faults)"

@@ -17,6 +17,7 @@ import threading
 import time
 from typing import Any
 
+from hera import cliargs
 from hera.client import ClusterClient, find_run_dir
 
 HELP_EXAMPLES = {
@@ -44,12 +45,12 @@ def add_parsers(sub: Any, command: Any) -> None:
     e = command(sub, "echo", "print the samples of a stream as they arrive", HELP_EXAMPLES["echo"])
     e.add_argument("stream", help="NAME or NAME/NODE (wildcards '*' allowed)")
     e.add_argument("--json", action="store_true", help="one JSON object per line")
-    e.add_argument("--count", type=int, help="stop after this many samples")
-    e.add_argument("--duration", type=float, help="stop after this many seconds")
+    e.add_argument("--count", type=cliargs.count, help="stop after this many samples")
+    e.add_argument("--duration", type=cliargs.positive, help="stop after this many seconds")
     h = command(sub, "hz", "rate, jitter and gaps of streams", HELP_EXAMPLES["hz"])
     h.add_argument("stream", help="NAME or NAME/NODE (wildcards '*' allowed)")
-    h.add_argument("--duration", type=float, help="stop after this many seconds")
-    h.add_argument("--every", type=float, default=1.0, help="print every this many s")
+    h.add_argument("--duration", type=cliargs.positive, help="stop after this many seconds")
+    h.add_argument("--every", type=cliargs.positive, default=1.0, help="print every this many s")
     h.add_argument("--json", action="store_true", help="print JSON at the end")
     s = command(sub, "store", "what a node's store holds, with ages", HELP_EXAMPLES["store"])
     s.add_argument("node")
@@ -70,7 +71,7 @@ def add_parsers(sub: Any, command: Any) -> None:
         "--name", dest="new_name", metavar="NAME", help="the new measure's name (default: --use)"
     )
     st.add_argument("--args", help="its arguments, a JSON object")
-    st.add_argument("--period", type=float, help="its period, s")
+    st.add_argument("--period", type=cliargs.positive, help="its period, s")
     sp = command(
         sub, "stop", "stop a measure (one started at run time is removed)", HELP_EXAMPLES["stop"]
     )
@@ -78,11 +79,11 @@ def add_parsers(sub: Any, command: Any) -> None:
     sp.add_argument("name")
     r = command(sub, "reload", "load new code of a module on every node", HELP_EXAMPLES["reload"])
     r.add_argument("module", help="a module or package whose measures or models changed")
-    r.add_argument("--timeout", type=float, default=30.0, help="s to wait for the nodes")
+    r.add_argument("--timeout", type=cliargs.positive, default=30.0, help="s to wait for the nodes")
     v = command(sub, "view", "serve the live web view of a running cluster", HELP_EXAMPLES["view"])
-    v.add_argument("--port", type=int, default=8765, help="port (0: any free one)")
+    v.add_argument("--port", type=cliargs.port, default=8765, help="port (0: any free one)")
     v.add_argument("--host", default="127.0.0.1", help="address (loopback only)")
-    v.add_argument("--duration", type=float, help="stop after this many seconds")
+    v.add_argument("--duration", type=cliargs.positive, help="stop after this many seconds")
     x = command(
         sub, "export", "write a run as an MCAP file (Foxglove, Lichtblick)", HELP_EXAMPLES["export"]
     )

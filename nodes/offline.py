@@ -26,6 +26,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from hera import cliargs
 from hera.args import ArgsStore
 from hera.csvlog import CsvLog
 from hera.examples import resolve_spec
@@ -156,10 +157,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("spec", help="cluster spec (TOML or a cluster.json)")
     p.add_argument("--out", required=True, help="run directory to write")
-    p.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
-    p.add_argument("--seed", type=int, default=0, help="world seed (a new rig) and schedule")
-    p.add_argument("--omega", type=float, help="world omega (rad/s; negative: clockwise)")
-    p.add_argument("--jitter", type=float, default=0.1, help="period jitter, fraction")
+    p.add_argument("--duration", type=cliargs.positive, default=60.0, help="seconds (default 60)")
+    p.add_argument(
+        "--seed",
+        type=cliargs.non_negative_int,
+        default=0,
+        help="world seed (a new rig) and schedule",
+    )
+    p.add_argument("--omega", type=cliargs.number, help="world omega (rad/s; negative: clockwise)")
+    p.add_argument(
+        "--jitter", type=cliargs.non_negative, default=0.1, help="period jitter, fraction"
+    )
     a = p.parse_args(argv)
     world: dict[str, Any] = {"seed": a.seed}
     if a.omega is not None:

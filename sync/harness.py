@@ -55,6 +55,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hera import cliargs
 from hera.ports import free_ports
 from hera.sync import clock as sync_clock
 
@@ -298,14 +299,14 @@ def main(argv: list[str] | None = None) -> int:
     """Run one harness node process until ``quit`` or the end of stdin."""
     p = argparse.ArgumentParser(prog="python -m hera.sync.harness")
     p.add_argument("--node", required=True)
-    p.add_argument("--port", type=int, required=True)
+    p.add_argument("--port", type=cliargs.port, required=True)
     p.add_argument("--peers", default="", help="comma-separated ports of the other nodes")
     p.add_argument("--hosts", default="", help="comma-separated host nodes of the group")
     p.add_argument("--group", default="sonar")
     p.add_argument("--cluster", default="synctest")
     p.add_argument("--measure", action="append", default=[], help="NAME:SLOT_MS")
-    p.add_argument("--lease-ms", type=int, default=300)
-    p.add_argument("--bus-lease-ms", type=int, default=2000)
+    p.add_argument("--lease-ms", type=cliargs.count, default=300)
+    p.add_argument("--bus-lease-ms", type=cliargs.count, default=2000)
     p.add_argument("--fire", default="", help="module:factory returning the fire callable")
     p.add_argument("--state-dir", default="", help="where the voter keeps its promise")
     p.add_argument("--log", required=True)

@@ -51,6 +51,7 @@ from typing import Any
 
 import numpy as np
 
+from hera import cliargs
 from hera.bench.machine import cpu_seconds
 
 TARGET = 10.0
@@ -390,22 +391,23 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="hera bench ahrs", description=" ".join(__doc__.split("\n\n")[0].split())
     )
-    ap.add_argument("--seed", type=int, default=42, help="seed of both data sets")
-    ap.add_argument("--samples", type=int, default=3000, help="ahrs.Sensors samples (100 Hz)")
-    ap.add_argument("--seconds", type=float, default=30.0, help="rotation_fast seconds")
+    ap.add_argument(
+        "--seed", type=cliargs.non_negative_int, default=42, help="seed of both data sets"
+    )
+    ap.add_argument(
+        "--samples", type=cliargs.count, default=3000, help="ahrs.Sensors samples (100 Hz)"
+    )
+    ap.add_argument("--seconds", type=cliargs.positive, default=30.0, help="rotation_fast seconds")
     ap.add_argument("--quick", action="store_true", help="small data sets, rough numbers")
     ap.add_argument(
         "--cpu",
-        type=float,
+        type=cliargs.positive,
         metavar="SECONDS",
         help="instead: the live node CPU of each AHRS at 100 Hz, measured over SECONDS on "
         "real clusters (six of them, one after the other: hold the cluster lock)",
     )
     args = ap.parse_args(argv if argv is not None else sys.argv[1:])
     if args.cpu is not None:
-        if not args.cpu > 0:
-            print("hera bench ahrs: --cpu must be a number of seconds > 0", file=sys.stderr)
-            return 2
         print("node CPU (% of one core): the computer node fed nav3 at 100 Hz, with and without")
         print(cpu_table(args.cpu))
         return 0

@@ -33,6 +33,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from hera import cliargs
 from hera.bench.machine import cpu_seconds
 from hera.bench.security import LABELS, MODES, TLS_HINT, measurable_modes, secure
 from hera.bus import BusConfig, open_session
@@ -275,11 +276,18 @@ def security_rows(sec: dict[str, dict[str, float]]) -> list[tuple[str, str, str,
 def main(argv: list[str]) -> int:
     """Run the bus benchmark and print its table; returns 0."""
     ap = argparse.ArgumentParser(prog="hera bench bus", description=__doc__.splitlines()[0])
-    ap.add_argument("--seconds", type=float, default=5.0, help="duration of each latency run")
-    ap.add_argument("--crashes", type=int, default=5, help="injected measure crashes")
+    ap.add_argument(
+        "--seconds", type=cliargs.positive, default=5.0, help="duration of each latency run"
+    )
+    ap.add_argument(
+        "--crashes", type=cliargs.non_negative_int, default=5, help="injected measure crashes"
+    )
     ap.add_argument("--quick", action="store_true", help="short runs (for smoke tests)")
     ap.add_argument(
-        "--rounds", type=int, default=3, help="alternating rounds of the security comparison"
+        "--rounds",
+        type=cliargs.count,
+        default=3,
+        help="alternating rounds of the security comparison",
     )
     args = ap.parse_args(argv)
     secs = 1.0 if args.quick else args.seconds

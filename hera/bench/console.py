@@ -28,6 +28,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from hera import cliargs
 from hera.bench.bus import observers_spec
 from hera.bench.machine import cpu_seconds
 from hera.client import ClusterClient
@@ -182,7 +183,9 @@ def measure(spec_path: Path, seconds: float, streams: int) -> dict[str, float]:
 
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="hera bench console", description=__doc__.split("\n")[0])
-    p.add_argument("--seconds", type=float, default=10.0, help="length of each measurement")
+    p.add_argument(
+        "--seconds", type=cliargs.positive, default=10.0, help="length of each measurement"
+    )
     args = p.parse_args(argv)
     spec = observers_spec()
     slow = measure(spec, args.seconds, 20)

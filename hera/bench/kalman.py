@@ -26,6 +26,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from hera import cliargs
 from hera.nodestatus import rss_mb
 
 TARGET = 3.0
@@ -322,7 +323,7 @@ def loaded_rss_mb(timeout: float = 120.0) -> float | None:
 def main(argv: list[str] | None = None) -> int:
     """CLI entry point (``hera bench kalman``). Returns a process exit code."""
     ap = argparse.ArgumentParser(prog="hera bench kalman", description=__doc__.splitlines()[0])
-    ap.add_argument("--steps", type=int, default=3000, help="timed steps per case")
+    ap.add_argument("--steps", type=cliargs.count, default=3000, help="timed steps per case")
     ap.add_argument("--quick", action="store_true", help="few steps (200), rough numbers")
     ap.add_argument("--filter", choices=["KF", "EKF", "UKF"], action="append", dest="kinds")
     args = ap.parse_args(argv if argv is not None else sys.argv[1:])

@@ -50,6 +50,7 @@ from typing import Any
 
 import zenoh
 
+from hera import cliargs
 from hera.bench.latency import LatencyHistogram
 from hera.bench.machine import MachineWindow, cpu_seconds, rss_mb
 from hera.bench.security import TLS_HINT, measurable_modes, modes, secure
@@ -305,7 +306,9 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--nodes", default="8,16,32", help="comma-separated node counts")
     ap.add_argument("--topologies", default="mesh,routers", help="mesh and/or routers")
     ap.add_argument("--phases", default="grid,staggered", help="grid and/or staggered")
-    ap.add_argument("--seconds", type=float, default=15.0, help="measuring window per run")
+    ap.add_argument(
+        "--seconds", type=cliargs.positive, default=15.0, help="measuring window per run"
+    )
     ap.add_argument(
         "--security", default="auth", help="auth (the default), tls and/or none: see above"
     )

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import time
 
+from hera import cliargs
 from hera.sync.harness import CLOCK, Cluster, check_firings
 
 ORIGINAL_FAILOVER_S = 10.0  # the thesis (ch. 5.3): synchronised measures stop up to ~10 s
@@ -133,10 +134,12 @@ def _table(r: dict, slot_ms: float) -> str:
 def main(argv: list[str]) -> int:
     """``hera bench sync``: print the table; exit status 1 if a target is missed."""
     p = argparse.ArgumentParser(prog="hera bench sync", description=__doc__.splitlines()[0])
-    p.add_argument("--slot-ms", type=float, default=5.0, help="slot of each measure (5)")
-    p.add_argument("--lease-ms", type=int, default=300, help="leader lease L (300)")
-    p.add_argument("--bus-lease-ms", type=int, default=2000, help="Zenoh link lease (2000)")
-    p.add_argument("--steady-s", type=float, default=5.0, help="steady-state phase (5)")
+    p.add_argument("--slot-ms", type=cliargs.positive, default=5.0, help="slot of each measure (5)")
+    p.add_argument("--lease-ms", type=cliargs.count, default=300, help="leader lease L (300)")
+    p.add_argument(
+        "--bus-lease-ms", type=cliargs.count, default=2000, help="Zenoh link lease (2000)"
+    )
+    p.add_argument("--steady-s", type=cliargs.positive, default=5.0, help="steady-state phase (5)")
     a = p.parse_args(argv)
     r = run(a.slot_ms, a.lease_ms, a.bus_lease_ms, a.steady_s)
     print(_table(r, a.slot_ms))

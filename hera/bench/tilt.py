@@ -30,6 +30,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from hera import cliargs
+
 CHUNK = 100
 
 
@@ -143,12 +145,9 @@ def format_report(res: dict, steps: int, backend: str) -> str:
 def main(argv: list[str] | None = None) -> int:
     """CLI entry point (``hera bench tilt``). Returns a process exit code."""
     ap = argparse.ArgumentParser(prog="hera bench tilt", description=__doc__.splitlines()[0])
-    ap.add_argument("--steps", type=int, default=3000, help="timed steps per filter")
+    ap.add_argument("--steps", type=cliargs.count, default=3000, help="timed steps per filter")
     ap.add_argument("--backend", choices=["numpy", "numba", "auto"], default="auto")
     args = ap.parse_args(argv if argv is not None else sys.argv[1:])
-    if args.steps < 1:
-        print("hera bench tilt: --steps must be at least 1", file=sys.stderr)
-        return 2
     from hera.estimation import backend
 
     try:

@@ -48,6 +48,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hera import cliargs
+
 MODES = ("pass", "blackhole", "reset")
 RTO_S = 0.2
 """First retransmission timeout (Linux's minimum)."""
@@ -403,7 +405,7 @@ def main(argv: list[str] | None = None) -> int:
     """``python -m hera.campaign.linkproxy PLAN [--parent-pid PID] [--ready FILE]``."""
     p = argparse.ArgumentParser(prog="hera-linkproxy")
     p.add_argument("plan", help="the links file (hera.campaign.links)")
-    p.add_argument("--parent-pid", type=int)
+    p.add_argument("--parent-pid", type=cliargs.count)
     p.add_argument("--ready", help="file written with the pid once every port listens")
     a = p.parse_args(argv)
     plan = json.loads(Path(a.plan).read_text())

@@ -29,8 +29,11 @@ def test_bench_without_the_ahrs_package(monkeypatch, capsys):
 
 def test_bad_options_are_refused(capsys):
     assert bench.main(["--samples", "10"]) == 2
-    assert bench.main(["--cpu", "0"]) == 2
-    assert "seconds > 0" in capsys.readouterr().err
+    assert "--samples must be >= 300" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refused:
+        bench.main(["--cpu", "0"])
+    assert refused.value.code == 2
+    assert "argument --cpu: must be a number > 0, got '0'" in capsys.readouterr().err
 
 
 def _row(name, ratio, mean):

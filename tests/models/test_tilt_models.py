@@ -198,4 +198,7 @@ def test_the_bench_prints_the_filters_next_to_table_5(capsys):
     for row in ("split (seed Table 8)", "EKF (hera.estimation)", "UKF (hera.estimation)"):
         assert row in out
     assert "counted (Table 5) 2.18x" in out
-    assert bench.main(["--steps", "0"]) == 2
+    with pytest.raises(SystemExit) as refused:
+        bench.main(["--steps", "0"])
+    assert refused.value.code == 2
+    assert "argument --steps: must be a whole number >= 1, got '0'" in capsys.readouterr().err

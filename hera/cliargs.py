@@ -1,0 +1,74 @@
+"""Argument types of the command lines (``hera`` and its benchmarks): numbers with the range
+they must lie in, so that a bad value is refused by argparse before anything starts, in one
+sentence naming the option and the value, with exit code 2 ("argument --duration: must be a
+number > 0, got '-1'"). Every numeric option of the command lines uses one of these (a test
+reads the sources for a bare ``type=float`` or ``type=int``)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+_Bad = argparse.ArgumentTypeError
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise _Bad(f"must be a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise _Bad(f"must be a finite number, got {text!r}")
+    return value
+
+
+def _integer(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise _Bad(f"must be a whole number, got {text!r}") from None
+
+
+def number(text: str) -> float:
+    """A finite number of any sign (a rate that may turn either way)."""
+    return _number(text)
+
+
+def positive(text: str) -> float:
+    """A finite number > 0 (a duration, a period, a rate)."""
+    value = _number(text)
+    if value <= 0:
+        raise _Bad(f"must be a number > 0, got {text!r}")
+    return value
+
+
+def non_negative(text: str) -> float:
+    """A finite number >= 0 (a delay, a jitter, a settling time)."""
+    value = _number(text)
+    if value < 0:
+        raise _Bad(f"must be a number >= 0, got {text!r}")
+    return value
+
+
+def count(text: str) -> int:
+    """A whole number >= 1 (steps, samples, rounds, a process id)."""
+    value = _integer(text)
+    if value < 1:
+        raise _Bad(f"must be a whole number >= 1, got {text!r}")
+    return value
+
+
+def non_negative_int(text: str) -> int:
+    """A whole number >= 0 (a seed, a number of injected crashes)."""
+    value = _integer(text)
+    if value < 0:
+        raise _Bad(f"must be a whole number >= 0, got {text!r}")
+    return value
+
+
+def port(text: str) -> int:
+    """A TCP port, 0 to 65535 (0: any free port)."""
+    value = _integer(text)
+    if not 0 <= value <= 65535:
+        raise _Bad(f"must be a port from 0 to 65535, got {text!r}")
+    return value
