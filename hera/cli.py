@@ -726,6 +726,12 @@ def _replay(args: argparse.Namespace) -> int:
         with_producers,
     )
 
+    if not Path(args.recordings).is_dir():
+        what = "not a folder" if Path(args.recordings).exists() else "no such folder"
+        raise ValueError(
+            f"{args.recordings}: {what}: give a run directory of 'hera up' (or of "
+            "'hera import') or a folder of <name>_<node>.csv recordings"
+        )
     spec_path = Path(args.recordings) / "cluster.json"
     recorded = _load(str(spec_path)) if spec_path.exists() else None
     spec = _load(args.spec) if args.spec else recorded

@@ -251,3 +251,13 @@ def test_a_bad_recording_names_the_file_and_the_row(tmp_path, content, message):
     assert out.returncode == 2 and "Traceback" not in out.stderr
     assert out.stderr.strip().splitlines()[-1].startswith(f"hera replay: {rec / 'nav_n.csv'}")
     assert message in out.stderr
+
+
+def test_replay_of_a_folder_that_is_not_there_says_so(tmp_path):
+    out = hera(tmp_path, "replay", str(tmp_path / "nope"), "--out", str(tmp_path / "o"))
+    assert out.returncode == 2
+    assert out.stderr == (
+        f"hera replay: {tmp_path / 'nope'}: no such folder: give a run directory of 'hera up' "
+        "(or of 'hera import') or a folder of <name>_<node>.csv recordings\n"
+    )
+    assert not (tmp_path / "o").exists()
