@@ -114,6 +114,22 @@ def web_port_problems(port: int, host: str = "127.0.0.1") -> list[str]:
     return []
 
 
+def output_file_problems(option: str, path: str | Path) -> list[str]:
+    """The problem with writing ``path`` (the file of ``option``), if any: found by opening
+    it for appending, which neither truncates a file that is there nor leaves one that was
+    not (a read-only or missing folder, a folder in its place)."""
+    target = Path(path)
+    existed = target.exists()
+    try:
+        with open(target, "ab"):
+            pass
+    except OSError as e:
+        return [f"{option}: cannot write {target}: {e.strerror or e}"]
+    if not existed:
+        target.unlink(missing_ok=True)
+    return []
+
+
 def console_dependencies(web: bool, mcap: bool) -> None:
     """ImportError naming the extra to install when the web view or MCAP recording is asked
     for without its packages (checked before any node starts)."""
@@ -219,6 +235,8 @@ class Launcher:
         busy = busy_ports(spec, self.local)
         if web:
             busy += web_port_problems(web)
+        if mcap is not None:
+            busy += output_file_problems("--mcap", mcap)
         if web is not None or mcap is not None:
             console_dependencies(web is not None, mcap is not None)
         if busy:

@@ -227,3 +227,13 @@ def test_a_run_directory_that_cannot_be_made_is_one_sentence_and_nothing_starts(
         f"hera up: cannot make the run directory {tmp_path}/file/run: Not a directory\n"
     )
     assert not (tmp_path / "hera-run").exists()
+
+
+def test_an_mcap_file_that_cannot_be_written_is_refused_before_anything_starts(tmp_path):
+    spec = tmp_path / "s.toml"
+    spec.write_text(SPEC.format(name="nomcap"))
+    (tmp_path / "file").write_text("x")
+    out = hera(tmp_path, "up", str(spec), "--mcap", str(tmp_path / "file" / "o.mcap"))
+    assert out.returncode == 2
+    assert out.stderr == f"hera up: --mcap: cannot write {tmp_path}/file/o.mcap: Not a directory\n"
+    assert not (tmp_path / "hera-run").exists()

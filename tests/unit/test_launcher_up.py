@@ -29,3 +29,21 @@ def test_nodes_of_other_hosts_are_not_waited_for():
     # hera up --only a,b: the spec's other nodes may start later elsewhere
     status = {"a": st("a", "b"), "b": st("b", "a"), "z": st("z")}
     assert not_up({"a", "b"}, status) == {}
+
+
+def test_an_output_file_is_probed_without_touching_what_is_there(tmp_path):
+    from hera.launcher import output_file_problems
+
+    kept = tmp_path / "kept.mcap"
+    kept.write_bytes(b"an earlier recording")
+    assert output_file_problems("--mcap", kept) == []
+    assert kept.read_bytes() == b"an earlier recording"  # not truncated
+    assert output_file_problems("--mcap", tmp_path / "new.mcap") == []
+    assert not (tmp_path / "new.mcap").exists()  # not left behind
+    (tmp_path / "file").write_text("x")
+    assert output_file_problems("--mcap", tmp_path / "file" / "o.mcap") == [
+        f"--mcap: cannot write {tmp_path}/file/o.mcap: Not a directory"
+    ]
+    assert output_file_problems("--mcap", tmp_path) == [
+        f"--mcap: cannot write {tmp_path}: Is a directory"
+    ]
