@@ -374,9 +374,18 @@ def main(argv: list[str] | None = None) -> int:
             check_runtime_env()
         return _dispatch(args, argv)
     except (LookupError, ValueError, OSError, ImportError) as e:
-        for line in str(e).strip().splitlines() or [type(e).__name__]:
+        for line in _problem(e).strip().splitlines() or [type(e).__name__]:
             print(f"hera {args.cmd}: {line}", file=sys.stderr)
         return 2
+
+
+def _problem(e: BaseException) -> str:
+    """The text of a refused command: an error of the system about a file reads
+    "PATH: reason" ("out/o.mcap: Not a directory"), not Python's "[Errno 20] ..."."""
+    if isinstance(e, OSError) and e.filename is not None and e.strerror:
+        target = f"{e.filename} -> {e.filename2}" if e.filename2 is not None else e.filename
+        return f"{target}: {e.strerror}"
+    return str(e)
 
 
 def _dispatch(args: argparse.Namespace, argv: list[str] | None = None) -> int:

@@ -261,3 +261,16 @@ def test_replay_of_a_folder_that_is_not_there_says_so(tmp_path):
         "(or of 'hera import') or a folder of <name>_<node>.csv recordings\n"
     )
     assert not (tmp_path / "o").exists()
+
+
+def test_an_error_of_the_system_about_a_file_reads_path_then_reason(tmp_path):
+    from hera.cli import _problem
+
+    (tmp_path / "file").write_text("x")
+    out = hera(tmp_path, "certs", "train", "--out", str(tmp_path / "file" / "certs"))
+    assert out.returncode == 2
+    assert out.stderr == f"hera certs: {tmp_path}/file/certs: Not a directory\n"
+    assert _problem(OSError(2, "No such file or directory", "a", None, "b")) == (
+        "a -> b: No such file or directory"
+    )
+    assert _problem(OSError("no file named")) == "no file named"
