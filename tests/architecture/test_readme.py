@@ -28,3 +28,22 @@ def test_the_application_example_is_the_tested_package():
     }
     for rel, text in shown.items():
         assert (ROOT / rel).read_text() == text, f"README's copy of {rel} is out of date"
+
+
+def test_every_spec_the_readme_shows_is_one_hera_up_takes():
+    """A TOML block with a ``[cluster]`` table is a whole spec: it must pass every check a
+    spec passes before start (the annotated one once declared 'obs1' twice). The plugin
+    example's files are left to the test that installs that package."""
+    from hera.preflight import check_spec
+    from hera.spec import parse_spec, tomllib
+
+    shown_files = r"<!-- file: \S+ -->\n`[^`]+`:\n\n```\w+\n.*?```\n"
+    text = re.sub(shown_files, "", README, flags=re.S)
+    specs = [
+        data
+        for block in re.findall(r"```toml\n(.*?)```", text, re.S)
+        if "cluster" in (data := tomllib.loads(block))
+    ]
+    assert specs
+    for i, data in enumerate(specs):
+        check_spec(parse_spec(data, f"README spec {i}"))
