@@ -8,6 +8,10 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Callable
+from typing import TypeVar
+
+T = TypeVar("T")
 
 _Bad = argparse.ArgumentTypeError
 
@@ -72,3 +76,35 @@ def port(text: str) -> int:
     if not 0 <= value <= 65535:
         raise _Bad(f"must be a port from 0 to 65535, got {text!r}")
     return value
+
+
+def whole_at_least(minimum: int) -> Callable[[str], int]:
+    """A whole number >= ``minimum`` (e.g. node counts a benchmark can lay out)."""
+
+    def kind(text: str) -> int:
+        value = _integer(text)
+        if value < minimum:
+            raise _Bad(f"must be a whole number >= {minimum}, got {text!r}")
+        return value
+
+    return kind
+
+
+def one_of(*allowed: str) -> Callable[[str], str]:
+    """One of the words ``allowed``."""
+
+    def kind(text: str) -> str:
+        if text not in allowed:
+            raise _Bad(f"must be one of {', '.join(allowed)}, got {text!r}")
+        return text
+
+    return kind
+
+
+def comma_separated(kind: Callable[[str], T]) -> Callable[[str], list[T]]:
+    """Comma-separated values of ``kind``, each checked (the first bad one is named)."""
+
+    def many(text: str) -> list[T]:
+        return [kind(item.strip()) for item in text.split(",")]
+
+    return many

@@ -303,9 +303,24 @@ def peer_run(n: int, topology: str, seconds: float, phases: str = "grid") -> dic
 def main(argv: list[str]) -> int:
     """Run the scale benchmark and print its table; returns 0."""
     ap = argparse.ArgumentParser(prog="hera bench scale", description=__doc__.splitlines()[0])
-    ap.add_argument("--nodes", default="8,16,32", help="comma-separated node counts")
-    ap.add_argument("--topologies", default="mesh,routers", help="mesh and/or routers")
-    ap.add_argument("--phases", default="grid,staggered", help="grid and/or staggered")
+    ap.add_argument(
+        "--nodes",
+        type=cliargs.comma_separated(cliargs.whole_at_least(READS + 1)),
+        default=[8, 16, 32],
+        help=f"comma-separated node counts (each >= {READS + 1}: a node reads {READS} others)",
+    )
+    ap.add_argument(
+        "--topologies",
+        type=cliargs.comma_separated(cliargs.one_of("mesh", "routers")),
+        default=["mesh", "routers"],
+        help="mesh and/or routers",
+    )
+    ap.add_argument(
+        "--phases",
+        type=cliargs.comma_separated(cliargs.one_of("grid", "staggered")),
+        default=["grid", "staggered"],
+        help="grid and/or staggered",
+    )
     ap.add_argument(
         "--seconds", type=cliargs.positive, default=15.0, help="measuring window per run"
     )
@@ -328,14 +343,8 @@ def main(argv: list[str]) -> int:
     if "tls" in securities and "tls" not in measurable_modes():
         print(f"hera bench scale: --security tls needs the tls extra: {TLS_HINT}", file=sys.stderr)
         return 2
-    sizes = [8] if args.quick else [int(x) for x in args.nodes.split(",")]
-    phases = ["grid"] if args.quick else args.phases.split(",")
-    for p in phases:
-        if p not in ("grid", "staggered"):
-            print(
-                f"hera bench scale: --phases: unknown {p!r}; use grid, staggered", file=sys.stderr
-            )
-            return 2
+    sizes = [8] if args.quick else args.nodes
+    phases = ["grid"] if args.quick else args.phases
     seconds = 5.0 if args.quick else args.seconds
     print(
         f"hera bench scale: {STREAMS} streams at {1 / PERIOD:.0f} Hz per node, each read by "
@@ -350,7 +359,7 @@ def main(argv: list[str]) -> int:
     print(head, flush=True)
     stacks = [f"hera/{sec}" for sec in securities] + ([PEER] if args.peer else [])
     ratios: list[str] = []
-    for n, topology, phase in itertools.product(sizes, args.topologies.split(","), phases):
+    for n, topology, phase in itertools.product(sizes, args.topologies, phases):
         rows: dict[str, dict[str, float]] = {}
         for stack in stacks:
             first = f"{n:>5} {topology:<8} {phase:<9} {stack:<10}"

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from hera.bench.scale import PERIOD, STREAMS, main, spec_text
 from hera.bench.security import secure
 from hera.spec import parse_spec, tomllib
@@ -24,9 +26,20 @@ def test_staggered_the_nodes_spread_over_the_period():
     assert text.count("offset =") == 4 * STREAMS
 
 
-def test_an_unknown_phases_value_is_refused(capsys):
-    assert main(["--phases", "grid,random"]) == 2
-    assert "--phases: unknown 'random'" in capsys.readouterr().err
+@pytest.mark.parametrize(
+    ("argv", "says"),
+    [
+        (["--phases", "grid,random"], "--phases: must be one of grid, staggered, got 'random'"),
+        (["--topologies", "star"], "--topologies: must be one of mesh, routers, got 'star'"),
+        (["--nodes", "8,1"], "--nodes: must be a whole number >= 4, got '1'"),
+        (["--nodes", "x"], "--nodes: must be a whole number, got 'x'"),
+    ],
+)
+def test_an_option_outside_what_the_benchmark_can_lay_out_is_refused(capsys, argv, says):
+    with pytest.raises(SystemExit) as refused:  # before any node starts
+        main(argv)
+    assert refused.value.code == 2
+    assert capsys.readouterr().err.splitlines()[-1].endswith(f"error: argument {says}")
 
 
 def test_an_unknown_security_mode_is_refused(capsys):

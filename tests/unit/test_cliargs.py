@@ -101,3 +101,16 @@ def test_the_reader_of_the_sources_finds_a_bare_number(tmp_path):
         'ap.add_argument("--ok", type=str)\n'
     )
     assert _bare_numeric_options(planted, tmp_path) == ["planted.py:4", "planted.py:5"]
+
+
+def test_lists_of_checked_values_name_the_first_bad_one():
+    counts = cliargs.comma_separated(cliargs.whole_at_least(4))
+    assert counts("8, 16,32") == [8, 16, 32]
+    with pytest.raises(cliargs.argparse.ArgumentTypeError) as e:
+        counts("8,3,2")
+    assert str(e.value) == "must be a whole number >= 4, got '3'"
+    words = cliargs.comma_separated(cliargs.one_of("grid", "staggered"))
+    assert words("staggered") == ["staggered"]
+    with pytest.raises(cliargs.argparse.ArgumentTypeError) as e:
+        words("grid,")
+    assert str(e.value) == "must be one of grid, staggered, got ''"
