@@ -719,6 +719,9 @@ def _inject(args: argparse.Namespace) -> int:
         print(f"hera inject: node {args.node!r} did not answer", file=sys.stderr)
         return 1
     reply = replies[args.node]
+    if not reply.get("ok") and reply.get("error"):  # refused: what was wrong, as stop says
+        print(f"hera inject: {args.node}: {reply['error']}", file=sys.stderr)
+        return 2
     print(json.dumps(reply))
     return 0 if reply.get("ok") else 1
 

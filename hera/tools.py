@@ -123,10 +123,19 @@ def _wait(stop: threading.Event, duration: float | None) -> None:
 
 
 def _echo(client: ClusterClient, args: argparse.Namespace) -> int:
-    from hera.watch import decode_sample, format_sample, stream_columns, stream_selector
+    from hera.watch import (
+        decode_sample,
+        format_sample,
+        stream_columns,
+        stream_note,
+        stream_selector,
+    )
 
     selector = stream_selector(client.keys, args.stream)
     columns = stream_columns(client.spec)
+    note = stream_note(client.spec, args.stream)
+    if note:
+        print(f"hera echo: {note}", file=sys.stderr, flush=True)
     done = threading.Event()
     lock = threading.Lock()
     seen = [0]
@@ -151,12 +160,18 @@ def _echo(client: ClusterClient, args: argparse.Namespace) -> int:
         _wait(done, args.duration)
     finally:
         sub.undeclare()
-    return 0 if seen[0] else 1
+    if not seen[0]:
+        print(f"hera echo: no sample of {args.stream!r} came", file=sys.stderr, flush=True)
+        return 1
+    return 0
 
 
 def _hz(client: ClusterClient, args: argparse.Namespace) -> int:
-    from hera.watch import RateTable, stream_selector
+    from hera.watch import RateTable, stream_note, stream_selector
 
+    note = stream_note(client.spec, args.stream)
+    if note:
+        print(f"hera hz: {note}", file=sys.stderr, flush=True)
     table = RateTable(client.keys)
     sub = client.subscribe(stream_selector(client.keys, args.stream), table.on_sample)
     end = None if args.duration is None else time.monotonic() + args.duration

@@ -37,6 +37,25 @@ def stream_selector(keys: Keys, stream: str) -> str:
     return keys.data(parts[0], parts[1] if len(parts) == 2 else "*")
 
 
+def stream_note(spec: Any, stream: str) -> str | None:
+    """A sentence for a stream argument that names no publication of the cluster's spec
+    (a typo shows at once rather than as silence), or None. Only a note: a measure started
+    at run time (``hera start``) may publish the name later."""
+    from fnmatch import fnmatchcase
+
+    parts = stream.strip("/").split("/")
+    names = sorted({str(m.name) for _, m in spec.measures()})
+    nodes = [n.name for n in spec.nodes]
+    if not any(fnmatchcase(x, parts[0]) for x in names):
+        return (
+            f"no measure of the spec publishes {parts[0]!r} (names: {', '.join(names)}); "
+            "waiting in case one is started at run time"
+        )
+    if len(parts) == 2 and not any(fnmatchcase(x, parts[1]) for x in nodes):
+        return f"no node {parts[1]!r} in the spec (nodes: {', '.join(nodes)}); waiting anyway"
+    return None
+
+
 def decode_sample(keys: Keys, key: str, payload: bytes) -> dict[str, Any]:
     """One sample of the bus as a JSON-able dict: name, node, seq, t, values (and grant);
     ValueError (WireError) naming what was wrong."""

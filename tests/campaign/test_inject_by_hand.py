@@ -134,6 +134,9 @@ def test_faults_by_hand_on_a_holding_campaign(tmp_path):
 
         r = hera(tmp_path, "inject", "n1", "loss", "lots", *d)
         assert r.returncode == 2 and "the loss share must be a number" in r.stderr
+        r = hera(tmp_path, "inject", "n1", "crash", "nosuch", *d)  # refused by the node
+        assert r.returncode == 2 and r.stdout == "", r.stdout
+        assert r.stderr.startswith("hera inject: n1: no measure 'nosuch' on this node"), r.stderr
 
         proc.send_signal(signal.SIGINT)  # ends the hold: stop, judge, report
         out, _ = proc.communicate(timeout=60)

@@ -237,6 +237,17 @@ def test_echo_hz_and_store_read_the_bus(train):
     assert [s["seq"] for s in samples] == sorted(s["seq"] for s in samples)
     text = train.hera("echo", "sonar", "--count", "2")
     assert text.returncode == 0 and "range [m]=" in text.stdout, text.stdout + text.stderr
+    assert text.stderr == ""  # a name of the spec: no note
+    typo = train.hera("echo", "sonr", "--duration", "1")  # a typo shows, not silence
+    assert typo.returncode == 1 and typo.stdout == ""
+    note, end = typo.stderr.splitlines()
+    assert note.startswith("hera echo: no measure of the spec publishes 'sonr' (names: ")
+    assert " sonar, " in note and note.endswith("); waiting in case one is started at run time")
+    assert end == "hera echo: no sample of 'sonr' came"
+    elsewhere = train.hera("hz", "nav/nav_9", "--duration", "1")
+    assert elsewhere.stderr.startswith(
+        "hera hz: no node 'nav_9' in the spec (nodes: nav_1, sonar_1, sonar_2, computer)"
+    )
 
     hz = train.hera("hz", "nav/nav_1", "--duration", "3", "--json")
     assert hz.returncode == 0, hz.stderr
