@@ -47,3 +47,21 @@ def test_every_spec_the_readme_shows_is_one_hera_up_takes():
     assert specs
     for i, data in enumerate(specs):
         check_spec(parse_spec(data, f"README spec {i}"))
+
+
+def _github_anchor(heading: str) -> str:
+    """The anchor GitHub (and PyPI) give a heading: lower case, punctuation dropped
+    (backticks, dots, parentheses, colons), spaces made hyphens."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def test_the_contents_list_every_section_in_order_with_working_anchors():
+    block = re.search(r"<!-- contents[^>]*-->\n(.*?)\n<!-- /contents -->", README, re.S)
+    assert block is not None, "the README lost its contents markers"
+    links = re.findall(r"\[([^\]]+)\]\(#([^)]+)\)", block.group(1))
+    headings = re.findall(r"^## (.+)$", README, re.M)
+    assert [text for text, _ in links] == [h.replace("`", "") for h in headings]
+    assert [anchor for _, anchor in links] == [_github_anchor(h) for h in headings]
+    assert _github_anchor("Estimation library (`hera.estimation`)") == (
+        "estimation-library-heraestimation"
+    )
