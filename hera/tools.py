@@ -226,10 +226,17 @@ def _store(client: ClusterClient, args: argparse.Namespace) -> int:
 
 def parse_value(text: str) -> Any:
     """A command-line value: JSON if it parses (numbers, lists, objects, true, "text"),
-    else the text itself."""
+    else the text itself; ValueError for a text that starts as JSON does ('{', '[' or '"')
+    but does not parse: a mistyped object is refused, not stored as a string."""
     try:
         return json.loads(text)
-    except ValueError:
+    except json.JSONDecodeError as e:
+        if text.lstrip()[:1] in ("{", "[", '"'):
+            raise ValueError(
+                f"value {text!r} is not JSON ({e.msg.removesuffix(' at')} at character "
+                f"{e.pos}): fix it, or give "
+                "a text that does not start with '{', '[' or '\"'"
+            ) from None
         return text
 
 

@@ -326,6 +326,8 @@ def test_args_reach_the_measure_and_a_deleted_calibration_is_rerun(train):
     wait_for(lambda: latest(train, "tune/sonar_1")[0] == 2.5, 10, "gain 2.5 published")
     got = train.hera("args", "get", "computer", key)  # replicated: any node has it
     assert got.returncode == 0 and f"{key} = 2.5" in got.stdout, got.stdout + got.stderr
+    typo = train.hera("args", "set", "sonar_1", key, "[2.5")  # refused, not stored as text
+    assert typo.returncode == 2 and "value '[2.5' is not JSON" in typo.stderr, typo.stderr
     bad = train.hera("args", "set", "sonar_1", key, '"loud"')
     assert bad.returncode == 2 and "gain" in bad.stderr and "loud" in bad.stderr, bad.stderr
     unknown = train.hera("args", "set", "sonar_1", "measure/sonar_1/nothing/gain", "1")
