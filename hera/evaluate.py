@@ -50,8 +50,13 @@ class Scored:
 
 
 def run_spec(run_dir: str | Path) -> ClusterSpec:
-    """The resolved spec of a run (its ``cluster.json``); ValueError if absent."""
-    path = Path(run_dir) / "cluster.json"
+    """The resolved spec of a run (its ``cluster.json``); ValueError naming what is wrong
+    when the folder is not there, is not a folder, or holds no run."""
+    folder = Path(run_dir)
+    if not folder.is_dir():
+        what = "not a folder" if folder.exists() else "no such folder"
+        raise ValueError(f"{run_dir}: {what}; give a run directory of 'hera up'")
+    path = folder / "cluster.json"
     if not path.exists():
         raise ValueError(f"{run_dir}: no cluster.json; is it a run directory of 'hera up'?")
     return load_spec(path)

@@ -31,9 +31,10 @@ from pathlib import Path
 from typing import IO, Any
 
 from hera.application import Truth
+from hera.evaluate import run_spec
 from hera.plugins import AppIndex, find_measure
 from hera.recordings import measures_dir, read_csv, split_stem
-from hera.spec import ClusterSpec, load_spec
+from hera.spec import ClusterSpec
 
 PROFILE = ""
 LIBRARY = "hera"
@@ -213,10 +214,7 @@ def export_run(
     channels, samples and truth messages. ValueError naming the problem for a folder that
     is not a run or has no recordings."""
     run_dir = Path(run_dir)
-    spec_path = run_dir / "cluster.json"
-    if not spec_path.exists():
-        raise ValueError(f"{run_dir}: no cluster.json; is it a run directory of 'hera up'?")
-    spec = load_spec(spec_path)
+    spec = run_spec(run_dir)
     folder = measures_dir(run_dir)
     files = sorted(folder.glob("*.csv"))
     if not files:

@@ -156,6 +156,10 @@ def test_an_export_of_a_folder_that_is_no_run_says_so(tmp_path):
 
     with pytest.raises(ValueError, match="no cluster.json"):
         export_run(tmp_path, tmp_path / "x.mcap")
+    with pytest.raises(ValueError) as e:
+        export_run(tmp_path / "gone", tmp_path / "x.mcap")
+    assert str(e.value) == f"{tmp_path}/gone: no such folder; give a run directory of 'hera up'"
+    assert not (tmp_path / "x.mcap").exists()
 
 
 # -- reloading modules --------------------------------------------------------------------
