@@ -27,6 +27,7 @@ seeds). A simulator's error-model defaults are its world's (``Scenario.nav_model
 from __future__ import annotations
 
 import importlib
+import logging
 import math
 import threading
 from collections.abc import Callable, Mapping
@@ -45,6 +46,8 @@ from hera.nodes.sonar_model import SonarModel
 from hera.nodes.world import SonarMount, environment, epoch_of, make_scenario
 from hera.resources import Resources
 from hera.schema import BOOL, STR, TABLE, Setting, number
+
+log = logging.getLogger(__name__)
 
 Board = Any
 """A registered board: a simulator or any driver satisfying the protocols of
@@ -135,13 +138,23 @@ class Boards:
             return air
 
     def close(self) -> None:
-        """Close the airs and forget every board (the node is stopping)."""
+        """Close the airs and every board that has a ``close`` (a real driver's port), and
+        forget them (the node is stopping); a board that fails to close is logged, not
+        raised, so the others still close."""
         with self._lock:
             airs = list(self._airs.values())
+            boards = list(self._boards.values())
             self._airs.clear()
             self._boards.clear()
         for air in airs:
             air.close()
+        for board in boards:
+            close = getattr(board, "close", None)
+            if callable(close):
+                try:
+                    close()
+                except Exception:
+                    log.exception("closing board %r failed", getattr(board, "id", board))
 
 
 def of(resources: Resources) -> Boards:

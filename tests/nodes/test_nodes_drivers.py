@@ -47,3 +47,24 @@ def test_a_driver_that_is_not_a_board_is_refused():
         Sonar().init({"driver": "fake_drivers:LevelNav"}, make_ctx("sonar", WORLD))
     with pytest.raises(ValueError, match="driver 'fake_drivers:Nope' cannot be loaded"):
         Nav().init({"driver": "fake_drivers:Nope"}, make_ctx("nav", WORLD))
+
+
+def test_the_node_stopping_closes_every_board_that_can_close():
+    from hera.nodes.boards import Boards
+
+    class Port(FixedSonar):
+        def __init__(self, fails: bool = False) -> None:
+            super().__init__()
+            self.closed, self.fails = 0, fails
+
+        def close(self) -> None:
+            self.closed += 1
+            if self.fails:
+                raise OSError("the port hung")
+
+    registry = Boards()
+    ports = [registry.register(Port(fails=i == 0), f"n1/s{i}") for i in range(3)]
+    registry.register(LevelNav(), "n1/nav")  # no close(): left alone
+    registry.close()
+    assert [p.closed for p in ports] == [1, 1, 1]  # the one that failed did not stop the rest
+    assert registry.ids() == []
