@@ -54,30 +54,6 @@ def non_negative(text: str) -> float:
     return value
 
 
-def count(text: str) -> int:
-    """A whole number >= 1 (steps, samples, rounds, a process id)."""
-    value = _integer(text)
-    if value < 1:
-        raise _Bad(f"must be a whole number >= 1, got {text!r}")
-    return value
-
-
-def non_negative_int(text: str) -> int:
-    """A whole number >= 0 (a seed, a number of injected crashes)."""
-    value = _integer(text)
-    if value < 0:
-        raise _Bad(f"must be a whole number >= 0, got {text!r}")
-    return value
-
-
-def port(text: str) -> int:
-    """A TCP port, 0 to 65535 (0: any free port)."""
-    value = _integer(text)
-    if not 0 <= value <= 65535:
-        raise _Bad(f"must be a port from 0 to 65535, got {text!r}")
-    return value
-
-
 def whole_at_least(minimum: int) -> Callable[[str], int]:
     """A whole number >= ``minimum`` (e.g. node counts a benchmark can lay out)."""
 
@@ -87,7 +63,23 @@ def whole_at_least(minimum: int) -> Callable[[str], int]:
             raise _Bad(f"must be a whole number >= {minimum}, got {text!r}")
         return value
 
+    kind.__doc__ = f"A whole number >= {minimum}."
     return kind
+
+
+count = whole_at_least(1)
+"""A whole number >= 1 (steps, samples, rounds, a process id)."""
+
+non_negative_int = whole_at_least(0)
+"""A whole number >= 0 (a seed, a number of injected crashes)."""
+
+
+def port(text: str) -> int:
+    """A TCP port, 0 to 65535 (0: any free port)."""
+    value = _integer(text)
+    if not 0 <= value <= 65535:
+        raise _Bad(f"must be a port from 0 to 65535, got {text!r}")
+    return value
 
 
 def one_of(*allowed: str) -> Callable[[str], str]:

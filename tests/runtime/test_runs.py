@@ -12,6 +12,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from harness import cluster_env, wait_for
 
 SPEC = """
@@ -217,23 +218,18 @@ def test_a_node_run_by_hand_checks_its_whole_spec_first(tmp_path):
     assert (out.returncode, out.stderr) == (0, "")
 
 
-def test_a_run_directory_that_cannot_be_made_is_one_sentence_and_nothing_starts(tmp_path):
+@pytest.mark.parametrize(
+    ("option", "says"),
+    [("--run-dir", "cannot make the run directory"), ("--mcap", "--mcap: cannot write")],
+)
+def test_an_output_that_cannot_be_written_is_one_sentence_and_nothing_starts(
+    tmp_path, option, says
+):
     spec = tmp_path / "s.toml"
     spec.write_text(SPEC.format(name="nowhere"))
     (tmp_path / "file").write_text("x")
-    out = hera(tmp_path, "up", str(spec), "--run-dir", str(tmp_path / "file" / "run"))
+    target = tmp_path / "file" / "out"
+    out = hera(tmp_path, "up", str(spec), option, str(target))
     assert out.returncode == 2
-    assert out.stderr == (
-        f"hera up: cannot make the run directory {tmp_path}/file/run: Not a directory\n"
-    )
-    assert not (tmp_path / "hera-run").exists()
-
-
-def test_an_mcap_file_that_cannot_be_written_is_refused_before_anything_starts(tmp_path):
-    spec = tmp_path / "s.toml"
-    spec.write_text(SPEC.format(name="nomcap"))
-    (tmp_path / "file").write_text("x")
-    out = hera(tmp_path, "up", str(spec), "--mcap", str(tmp_path / "file" / "o.mcap"))
-    assert out.returncode == 2
-    assert out.stderr == f"hera up: --mcap: cannot write {tmp_path}/file/o.mcap: Not a directory\n"
+    assert out.stderr == f"hera up: {says} {target}: Not a directory\n"
     assert not (tmp_path / "hera-run").exists()
