@@ -10,7 +10,7 @@ import sys
 import time
 
 from hera import cliargs, tools
-from hera.client import ClusterClient, find_run_dir, pid_alive
+from hera.client import find_run_dir, pid_alive
 
 BENCHES = ("bus", "kalman", "sync", "scale", "console", "tilt", "ahrs")
 
@@ -215,21 +215,7 @@ def _parser() -> argparse.ArgumentParser:
         "--jitter", type=cliargs.non_negative, default=0.0, help="delay: +/- this much, ms"
     )
     for s in (st, dn, inj):
-        s.add_argument("--run-dir", help="run directory of the cluster (on this host)")
-        s.add_argument("--cluster", help="name of the cluster, if several run")
-        s.add_argument(
-            "--connect",
-            action="append",
-            metavar="ENDPOINT",
-            help="reach the cluster through this node or router (e.g. tcp/10.0.0.2:7447), "
-            "from any host: no run directory needed (repeatable)",
-        )
-        s.add_argument(
-            "--cert",
-            metavar="DIR",
-            help="with --connect: the operator's credentials, a folder made by 'hera certs' "
-            "(default: those of the cluster run from this host)",
-        )
+        tools.cluster_options(s)
 
     ms = _command(
         sub, "measures", "list the installed measures, or show one", HELP_EXAMPLES["measures"]
@@ -580,35 +566,6 @@ def _measures(args: argparse.Namespace) -> int:
     return 0
 
 
-def _client(args: argparse.Namespace) -> ClusterClient:
-    """The cluster a tool command talks to: through ``--connect`` endpoints (any host), or
-    the one registered on this host (``--run-dir``, ``--cluster``, or the only one)."""
-    if args.connect:
-        return ClusterClient.connect(
-            args.connect, args.cluster, credentials=_tool_credentials(args)
-        )
-    return ClusterClient.from_run_dir(find_run_dir(args.run_dir, args.cluster))
-
-
-def _tool_credentials(args: argparse.Namespace):
-    """The operator's credentials of a tool run with ``--connect``: from ``--cert DIR``, else
-    those of the cluster this host runs (``--run-dir``, ``--cluster`` or the only one)."""
-    from hera.security.access import OPERATOR
-    from hera.security.credentials import for_operator, for_spec
-    from hera.spec import load_spec
-
-    if args.cert:
-        return for_operator(args.cert, args.connect)
-    try:
-        run_dir = find_run_dir(args.run_dir, args.cluster)
-    except LookupError:
-        raise LookupError(
-            "--connect needs the operator's credentials: give --cert DIR (a folder made by "
-            "'hera certs'), or run it on a host that runs the cluster"
-        ) from None
-    return for_spec(load_spec(run_dir / "cluster.json"), OPERATOR)
-
-
 def _status(args: argparse.Namespace) -> int:
     from hera.client import running_clusters
     from hera.statusview import render_node, render_status
@@ -618,7 +575,7 @@ def _status(args: argparse.Namespace) -> int:
         for c in running_clusters():
             print(f"  {c['cluster']:<16} launcher {c['launcher_pid']:<8} {c['run_dir']}")
         return 0
-    with _client(args) as client:
+    with tools.connect(args) as client:
         if args.node is not None:
             if client.spec is not None:
                 client.spec.node(args.node)  # an unknown node lists the known ones
@@ -667,7 +624,7 @@ def _down_over_the_bus(args: argparse.Namespace) -> int:
     """Stop a cluster from any host: the nodes no launcher runs (started by hand) get
     ``shutdown``, then every launcher on the bus is asked at once to stop what it runs
     (the ones that run routers last: the others' requests travel through them)."""
-    with _client(args) as client:
+    with tools.connect(args) as client:
         launchers = client.launchers(timeout=2.0)
         launched = {n for st in launchers.values() for n in st.get("nodes", {})}
         for node in sorted(set(client.status(timeout=1.0)) - launched):
@@ -692,7 +649,7 @@ def _inject(args: argparse.Namespace) -> int:
 
         run_dir = None if args.connect else find_run_dir(args.run_dir, args.cluster)
         peers = args.peers.split(",") if args.peers else None
-        with _client(args) as client:
+        with tools.connect(args) as client:
             reply = inject(
                 client,
                 run_dir,
@@ -711,7 +668,7 @@ def _inject(args: argparse.Namespace) -> int:
         verb, request = args.fault, {"measure": args.measure}
     else:
         verb, request = "inject", {"fault": args.fault, "measure": args.measure}
-    with _client(args) as client:
+    with tools.connect(args) as client:
         if client.spec is not None:
             client.spec.node(args.node)  # an unknown node lists the known ones
         replies = client.query(args.node, verb, request)

@@ -2,9 +2,10 @@
 ``start``, ``stop``, ``reload`` and ``view``, and ``export`` of a run.
 
 Every command reaches the cluster through one :class:`hera.client.ClusterClient` made by
-:func:`connect` (today: the run directory of a cluster started on this host), so a new way
-to reach a cluster is added in one place. Bad input gets one sentence and exit code 2; a
-node that does not answer, or refuses, exit code 1.
+:func:`connect` (the run directory of a cluster started on this host, or ``--connect``
+endpoints from any host), so a new way to reach a cluster is added in one place; the
+``hera`` commands ``status``, ``down`` and ``inject`` use it too. Bad input, or a request
+a node refuses, gets one sentence and exit code 2; a node that does not answer, exit code 1.
 """
 
 from __future__ import annotations
@@ -34,9 +35,23 @@ HELP_EXAMPLES = {
 COMMANDS = ("echo", "hz", "store", "args", "start", "stop", "reload", "view", "export")
 
 
-def _cluster_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--run-dir", help="run directory of the cluster")
+def cluster_options(p: argparse.ArgumentParser) -> None:
+    """The options that say which cluster a command talks to (see :func:`connect`)."""
+    p.add_argument("--run-dir", help="run directory of the cluster (on this host)")
     p.add_argument("--cluster", help="name of the cluster, if several run")
+    p.add_argument(
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="reach the cluster through this node or router (e.g. tcp/10.0.0.2:7447), "
+        "from any host: no run directory needed (repeatable)",
+    )
+    p.add_argument(
+        "--cert",
+        metavar="DIR",
+        help="with --connect: the operator's credentials, a folder made by 'hera certs' "
+        "(default: those of the cluster run from this host)",
+    )
 
 
 def add_parsers(sub: Any, command: Any) -> None:
@@ -89,13 +104,42 @@ def add_parsers(sub: Any, command: Any) -> None:
     )
     x.add_argument("run_dir")
     x.add_argument("--mcap", required=True, metavar="OUT", help="the .mcap file to write")
-    for p in (e, h, s, a, st, sp, r, v):
-        _cluster_options(p)
+    for p in (e, h, s, a, st, sp, r):
+        cluster_options(p)
+    v.add_argument("--run-dir", help="run directory of the cluster (on this host)")
+    v.add_argument("--cluster", help="name of the cluster, if several run")
 
 
 def connect(args: argparse.Namespace) -> ClusterClient:
-    """The client of the cluster the command line names (see the module docstring)."""
+    """The client of the cluster the command line names (:func:`cluster_options`): through
+    ``--connect`` endpoints, from any host (no spec then: names are not checked against
+    it), or the one registered on this host (``--run-dir``, ``--cluster``, or the only
+    one)."""
+    if getattr(args, "connect", None):
+        return ClusterClient.connect(
+            args.connect, args.cluster, credentials=_operator_credentials(args)
+        )
     return ClusterClient.from_run_dir(find_run_dir(args.run_dir, args.cluster))
+
+
+def _operator_credentials(args: argparse.Namespace) -> Any:
+    """The operator's credentials of a command run with ``--connect``: from ``--cert DIR``,
+    else those of the cluster this host runs (``--run-dir``, ``--cluster`` or the only
+    one)."""
+    from hera.security.access import OPERATOR
+    from hera.security.credentials import for_operator, for_spec
+    from hera.spec import load_spec
+
+    if args.cert:
+        return for_operator(args.cert, args.connect)
+    try:
+        run_dir = find_run_dir(args.run_dir, args.cluster)
+    except LookupError:
+        raise LookupError(
+            "--connect needs the operator's credentials: give --cert DIR (a folder made by "
+            "'hera certs'), or run it on a host that runs the cluster"
+        ) from None
+    return for_spec(load_spec(run_dir / "cluster.json"), OPERATOR)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -132,8 +176,8 @@ def _echo(client: ClusterClient, args: argparse.Namespace) -> int:
     )
 
     selector = stream_selector(client.keys, args.stream)
-    columns = stream_columns(client.spec)
-    note = stream_note(client.spec, args.stream)
+    columns = stream_columns(client.spec) if client.spec is not None else {}
+    note = stream_note(client.spec, args.stream) if client.spec is not None else None
     if note:
         print(f"hera echo: {note}", file=sys.stderr, flush=True)
     done = threading.Event()
@@ -169,7 +213,7 @@ def _echo(client: ClusterClient, args: argparse.Namespace) -> int:
 def _hz(client: ClusterClient, args: argparse.Namespace) -> int:
     from hera.watch import RateTable, stream_note, stream_selector
 
-    note = stream_note(client.spec, args.stream)
+    note = stream_note(client.spec, args.stream) if client.spec is not None else None
     if note:
         print(f"hera hz: {note}", file=sys.stderr, flush=True)
     table = RateTable(client.keys)
@@ -196,7 +240,8 @@ def _hz(client: ClusterClient, args: argparse.Namespace) -> int:
 
 def _one(client: ClusterClient, node: str, verb: str, request: dict, timeout: float = 2.0):
     """The reply of one node (its name checked against the spec); None if it is silent."""
-    client.spec.node(node)  # an unknown node lists the known ones
+    if client.spec is not None:
+        client.spec.node(node)  # an unknown node lists the known ones
     reply = client.query(node, verb, request, timeout=timeout).get(node)
     if reply is None:
         print(f"hera {verb}: node {node!r} did not answer", file=sys.stderr)
@@ -220,7 +265,8 @@ def _store(client: ClusterClient, args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(reply["samples"], indent=1))
     else:
-        print(format_store(reply["samples"], stream_columns(client.spec)))
+        columns = stream_columns(client.spec) if client.spec is not None else {}
+        print(format_store(reply["samples"], columns))
     return 0
 
 
@@ -324,7 +370,8 @@ def _reload(client: ClusterClient, args: argparse.Namespace) -> int:
     if found is None:
         raise ValueError(f"no module called {args.module!r} is installed here")
     replies = client.query("*", "reload", {"module": args.module}, timeout=args.timeout)
-    nodes = [n.name for n in client.spec.nodes]
+    # every node of the spec (a silent one is named); over --connect, those that answered
+    nodes = [n.name for n in client.spec.nodes] if client.spec is not None else sorted(replies)
     code = 0
     for node in nodes:
         reply = replies.get(node)
