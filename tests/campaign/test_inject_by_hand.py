@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from harness import cluster_env, wait_for
+from harness import cluster_env, run_hera, wait_for
 
 from hera.campaign import history
 from hera.campaign.manual import _network
@@ -65,13 +65,7 @@ skip = ["figures"]
 
 
 def hera(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "hera", *args],
-        env=cluster_env(tmp_path),
-        capture_output=True,
-        text=True,
-        timeout=30,
-    )
+    return run_hera(tmp_path, *args, cwd=Path.cwd(), timeout=30)
 
 
 def test_faults_by_hand_on_a_holding_campaign(tmp_path):

@@ -3,29 +3,18 @@ the table and the key, exit code 2, no traceback, and nothing started."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
-from harness import cluster_env
+from harness import run_hera
 
 ROOT = Path(__file__).resolve().parents[2]
 HEAD = '[cluster]\nname = "e"\n[[nodes]]\nname = "a"\n'
 TRAIN_MODEL = '[[nodes.measures]]\nuse = "track_radius"\nargs = { model = { %s } }\n'
 
 
-def hera(
-    tmp_path: Path, *args: str, env: dict[str, str] | None = None
-) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "hera", *args],
-        env={**cluster_env(tmp_path), **(env or {})},
-        capture_output=True,
-        text=True,
-        timeout=60,
-        cwd=ROOT,
-    )
+def hera(tmp_path: Path, *args: str, env: dict[str, str] | None = None):
+    return run_hera(tmp_path, *args, cwd=ROOT, env=env)
 
 
 CASES = [

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 from harness import cluster_env, wait_for
+from harness import run_hera as hera
 
 SPEC = """
 [cluster]
@@ -28,17 +29,6 @@ name = "obs1"
 [[nodes]]
 name = "b"
 """
-
-
-def hera(tmp_path: Path, *args: str, cwd: Path | None = None, timeout: float = 60):
-    return subprocess.run(
-        [sys.executable, "-m", "hera", *args],
-        env=cluster_env(tmp_path),
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        cwd=cwd or tmp_path,
-    )
 
 
 def start(tmp_path: Path, *args: str) -> subprocess.Popen:

@@ -5,11 +5,8 @@ credentials found on this host, as on a machine that runs the cluster)."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
-from pathlib import Path
 
-from harness import cluster_env
+from harness import run_hera as hera
 
 from hera.spec import load_spec
 
@@ -24,17 +21,6 @@ name = "obs1"
 [[nodes]]
 name = "n2"
 """
-
-
-def hera(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "hera", *args],
-        env=cluster_env(tmp_path),
-        capture_output=True,
-        text=True,
-        timeout=60,
-        cwd=tmp_path,
-    )
 
 
 def test_the_operators_commands_work_through_connect(cluster, tmp_path):

@@ -36,6 +36,26 @@ def cluster_env(tmp_path: Path) -> dict[str, str]:
     return env
 
 
+def run_hera(
+    tmp_path: Path,
+    *args: str,
+    cwd: Path | None = None,
+    env: dict[str, str] | None = None,
+    timeout: float = 60,
+) -> subprocess.CompletedProcess:
+    """``python -m hera ARGS`` with this test's registry (:func:`cluster_env`, plus ``env``),
+    run in ``cwd`` (default ``tmp_path``, so a run directory made by mistake lands there);
+    its output captured as text."""
+    return subprocess.run(
+        [sys.executable, "-m", "hera", *args],
+        env={**cluster_env(tmp_path), **(env or {})},
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        cwd=cwd or tmp_path,
+    )
+
+
 def _descendants(pid: int) -> list[int]:
     out = subprocess.run(["ps", "-eo", "pid=,ppid=,args="], capture_output=True, text=True)
     return [

@@ -4,11 +4,10 @@ one sentence naming the option and the value, exit code 2 (``hera.cliargs``)."""
 from __future__ import annotations
 
 import ast
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from harness import run_hera
 
 from hera import cliargs
 
@@ -44,16 +43,6 @@ def test_each_kind_takes_its_range_and_names_a_value_outside_it(kind, good, bad,
         assert repr(text) in str(e.value)
 
 
-def _hera(cwd: Path, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "hera", *args],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        cwd=cwd,  # a run directory, were one made by mistake, would go there
-    )
-
-
 BAD_COMMAND_LINES = [
     ("up train --duration -1", "--duration: must be a number > 0, got '-1'"),
     ("up train --web 70000", "--web: must be a port from 0 to 65535, got '70000'"),
@@ -67,7 +56,7 @@ BAD_COMMAND_LINES = [
 
 @pytest.mark.parametrize(("argv", "stderr_end"), BAD_COMMAND_LINES)
 def test_a_bad_number_on_a_command_line_is_one_sentence_and_exit_code_2(tmp_path, argv, stderr_end):
-    out = _hera(tmp_path, *argv.split())
+    out = run_hera(tmp_path, *argv.split())  # a run directory made by mistake: tmp_path
     assert out.returncode == 2
     assert out.stderr.splitlines()[-1].endswith(f"error: argument {stderr_end}"), out.stderr
     assert out.stdout == "" and list(tmp_path.iterdir()) == []
