@@ -284,6 +284,9 @@ class MeasureContext:
     - ``session``/``keys``: the node's Zenoh session and key builder (for ``sim`` keys);
     - ``world``: the spec's ``[world]`` table (scenario, shared epoch ...), read only;
     - ``counters``: measure-specific counters shown in the node status (e.g. cross-talk);
+    - ``trouble``: what is wrong with the measure right now, in a few words (its board does
+      not answer), or None; shown in the node status and on the live view's problems line
+      while it is set, so a measure that goes on through a fault is still seen;
     - ``grant``: while a synchronised step runs, the grant it runs under, else None;
     - ``seed``: a deterministic seed for this (node, measure), from the spec;
     - ``run_dir``: the run directory (for recordings), or None;
@@ -302,6 +305,7 @@ class MeasureContext:
     keys: Keys
     world: Mapping[str, Any] = field(default_factory=dict)
     counters: MutableMapping[str, float] = field(default_factory=dict)
+    trouble: str | None = None
     grant: Any = None
     seed: int = 0
     run_dir: str | None = None

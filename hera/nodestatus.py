@@ -39,6 +39,7 @@ def measures_status(node: Node) -> dict[str, dict[str, Any]]:
             "overruns": st.overruns if st else 0,
             "skipped_slots": st.skipped_slots if st else 0,
             "counters": dict(w.ctx.counters) if w is not None else {},
+            "trouble": w.ctx.trouble if w is not None else None,
             "period_s": w.spec.period if w is not None else None,
             "restart_ms": c.restart_ms,
         }

@@ -2,8 +2,8 @@
 
 The compact view fits the terminal it is drawn on (80 x 24 and up): a header, one line per
 node, one line per sync group (leader, epoch, who holds the slot), one line of problems
-(crashed measures, rejected inputs, silent nodes) when there are any, then the
-applications' panels (one line per model) in the rows that are left. Lines are cut to the
+(crashed measures, measures in trouble, rejected inputs, silent nodes) when there are any,
+then the applications' panels (one line per model) in the rows that are left. Lines are cut to the
 width, never wrapped; rows that do not fit are counted on a last line. ``hera status NODE``
 gives the details of one node (:func:`render_node`).
 """
@@ -81,14 +81,17 @@ def sync_rows(status: Mapping[str, Mapping[str, Any]]) -> list[str]:
 
 
 def problem_rows(status: Mapping[str, Mapping[str, Any]]) -> list[str]:
-    """What needs attention: measures not running or restarted, rejected inputs, sources
-    whose samples are all refused, refused args writes."""
+    """What needs attention: measures not running or restarted or in trouble (a board that
+    does not answer), rejected inputs, sources whose samples are all refused, refused args
+    writes."""
     items = []
     for node in sorted(status):
         for name, m in sorted(status[node].get("measures", {}).items()):
             if m.get("state") != "running" or m.get("restarts"):
                 err = f" ({m['last_error']})" if m.get("last_error") else ""
                 items.append(f"{node}/{name} {m.get('state')} x{m.get('restarts', 0)}{err}")
+            elif m.get("trouble"):
+                items.append(f"{node}/{name} {m['trouble']}")
         rejected = status[node].get("rejected") or {}
         if rejected:
             kinds = ",".join(f"{k}={v}" for k, v in sorted(rejected.items()))
@@ -180,6 +183,8 @@ def render_node(status: Mapping[str, Any]) -> str:
             f"{m.get('seq', 0):>8} {m.get('rate_hz', 0):>7.1f} "
             f"{m.get('jitter_ms', {}).get('p99', 0):>7.2f} {m.get('overruns', 0):>8} {counters}"
         )
+        if m.get("trouble"):
+            lines.append(f"{'':<16} now: {m['trouble']}")
         if m.get("last_error"):
             lines.append(f"{'':<16} last error: {m['last_error']}")
     store = status.get("store", {})

@@ -11,13 +11,12 @@ is back the step after the channel is.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Mapping
 from typing import Any
 
 from hera.measure import Measure, MeasureContext, Reading
+from hera.nodes.board_reads import BoardReads
 from hera.nodes.boards import BOARD_ARGS
-from hera.nodes.driver import BoardDisconnected, NoReading
 from hera.nodes.ir.boards import open_ir, open_thermocouple, thermocouple_position
 from hera.nodes.ir.driver import PosedIr, SimulatedIr, SimulatedThermocouple
 from hera.nodes.ir.sharp import VARIANTS, variant
@@ -64,10 +63,10 @@ TC_ARGS = Table(
 
 
 class _Board(Measure):
-    """Shared: the truth recorder and the "disconnected" bookkeeping."""
+    """Shared: the truth recorder and the board's reads (:mod:`hera.nodes.board_reads`)."""
 
     _truth: TruthRecorder | None = None
-    _warned = 0.0
+    reads: BoardReads
 
     def _open_truth(self, args: Mapping[str, Any], ctx: MeasureContext, column: str) -> None:
         self._truth = None
@@ -78,17 +77,7 @@ class _Board(Measure):
 
     def _read(self) -> Any:
         """The board's sample, or None (counted) when the channel is unreachable."""
-        try:
-            return self.board.read_sample()
-        except NoReading:
-            self.ctx.count("dropouts")
-        except BoardDisconnected as e:
-            self.ctx.count("disconnected")
-            now = time.monotonic()
-            if now - self._warned > 5.0:  # one line per 5 s, not one per step
-                self._warned = now
-                self.ctx.log.warning("%s: %s", self.ctx.spec.name, e)
-        return None
+        return self.reads.read(self.board.read_sample)
 
     def close(self) -> None:
         if self._truth is not None:
@@ -108,6 +97,7 @@ class SharpIr(_Board):
         args = self.prepare_args(args)
         super().init(args, ctx)
         self.board = open_ir(ctx, args)
+        self.reads = BoardReads(ctx)
         pos = args["position_cm"] or (0.0, 0.0)
         self.mount = (float(pos[0]), float(pos[1]), float(args["heading_deg"]))
         self._open_truth(args, ctx, "true distance [cm]")
@@ -134,6 +124,7 @@ class Thermocouple(_Board):
         args = self.prepare_args(args)
         super().init(args, ctx)
         self.board = open_thermocouple(ctx, args)
+        self.reads = BoardReads(ctx)
         self.position = thermocouple_position(ctx, args)
         self._open_truth(args, ctx, "true temperature [degC]")
 

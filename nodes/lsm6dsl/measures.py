@@ -15,7 +15,8 @@ runs at the start when ``calibration = "at_start"`` (the default) and no bias is
 and whenever an operator asks with the ``gyro_calibration`` control verb. The result goes to
 the replicated args store under ``calib/<node>/<measure>`` (``b_gyro_dps``, chip axes), so a
 restarted measure or node keeps it and never recalibrates by itself. Counters:
-``calibrations``, ``calib_restarts`` (motion seen during a calibration), ``dropouts``.
+``calibrations``, ``calib_restarts`` (motion seen during a calibration), ``dropouts``,
+``disconnected`` (:mod:`hera.nodes.board_reads`).
 """
 
 from __future__ import annotations
@@ -27,9 +28,9 @@ from typing import Any
 
 from hera.measure import Measure, MeasureContext, Reading
 from hera.nodes import boards
+from hera.nodes.board_reads import BoardReads
 from hera.nodes.boards import BOARD_ARGS
 from hera.nodes.calibration import calib_key, is_vec
-from hera.nodes.driver import NoReading
 from hera.nodes.lsm6dsl.calibration import GyroCalibration
 from hera.nodes.lsm6dsl.driver import ODRS_HZ, Lsm6dslDriver
 from hera.nodes.lsm6dsl.model import IMU_MODEL, ImuModel
@@ -163,6 +164,7 @@ class Lsm6dsl(Measure):
                 f"give period = {1.0 / odr:.6g} (1 / odr_hz)"
             )
         self.board = open_imu(ctx, args)
+        self.reads = BoardReads(ctx)
         self.key = calib_key(ctx)
         self.desk = CalibrationDesk.of(ctx.resources)
         self._calib_args = (args["calib_samples"], args["still_gyro_dps"], args["still_acc_g"])
@@ -197,10 +199,8 @@ class Lsm6dsl(Measure):
     def measure(self) -> Reading | None:
         if self.desk.take(self.ctx.spec.name or self.name):
             self._start_calibration()
-        try:
-            r = self.board.read_imu()
-        except NoReading:
-            self.ctx.count("dropouts")
+        r = self.reads.read(self.board.read_imu)
+        if r is None:
             return None
         if self.calib is not None:
             restarts = self.calib.restarts

@@ -4,6 +4,7 @@ All read a board through :class:`hera.nodes.driver.NavDriver` (the simulator by 
 real driver with the arg ``driver``) and calibrate once: the result is stored in the
 replicated args store under ``calib/<node>/<measure>`` and read back first, so a restarted
 measure does not recalibrate. Measures of one node naming the same ``board`` share one board.
+Counters: ``dropouts``, ``disconnected`` (:mod:`hera.nodes.board_reads`).
 
 Their arguments are declared (:data:`NAV_ARGS`, ``arguments`` of each class): unknown or
 ill-typed ones are refused before a node starts.
@@ -18,6 +19,7 @@ from typing import Any, ClassVar
 from hera.measure import Measure, MeasureContext, Reading
 from hera.nodes import boards
 from hera.nodes import geometry as gm
+from hera.nodes.board_reads import BoardReads
 from hera.nodes.boards import BOARD_ARGS
 from hera.nodes.calibration import (
     calibrate_mag,
@@ -28,7 +30,7 @@ from hera.nodes.calibration import (
     rotate_y,
     stored_or_run,
 )
-from hera.nodes.driver import ImuSample, NavDriver, NoReading, SimulatedBoard
+from hera.nodes.driver import ImuSample, NavDriver, SimulatedBoard
 from hera.nodes.truth import TruthRecorder, want_truth
 from hera.nodes.world import G, State
 from hera.schema import BOOL, STR, Setting, Table, choice, number
@@ -68,6 +70,7 @@ class _NavMeasure(Measure):
         args = self.prepare_args(args)
         super().init(args, ctx)
         self.board = boards.open_nav(ctx, args)
+        self.reads = BoardReads(ctx)
         self._truth = None
         if want_truth(args, ctx.run_dir):
             self._truth = TruthRecorder(
@@ -125,10 +128,8 @@ class Nav(_NavMeasure):
         self.sin_tilt = float(cal["sin_tilt"])
 
     def measure(self) -> Reading | None:
-        try:
-            s = self.board.read_imu(mag=False)
-        except NoReading:
-            self.ctx.count("dropouts")
+        s = self.reads.read(self.board.read_imu, False)
+        if s is None:
             return None
         a = rotate_y(gm.sub(s.acc, self.acc0), self.sin_tilt)
         w = rotate_y(gm.sub(s.gyro, self.gyro0), self.sin_tilt)
@@ -176,10 +177,8 @@ class Mag(_NavMeasure):
         self._yaw0 = _yaw(b.rest_truth().orientation) if isinstance(b, SimulatedBoard) else 0.0
 
     def measure(self) -> Reading | None:
-        try:
-            s = self.board.read_imu(mag=True)
-        except NoReading:
-            self.ctx.count("dropouts")
+        s = self.reads.read(self.board.read_imu, True)
+        if s is None:
             return None
         m = s.mag
         assert m is not None
@@ -285,10 +284,8 @@ class Nav3(_NavMeasure):
         self.mag0: gm.Vec3 = tuple(self.cal["mag"])  # type: ignore[assignment]
 
     def measure(self) -> Reading | None:
-        try:
-            s = self.board.read_imu(mag=True)
-        except NoReading:
-            self.ctx.count("dropouts")
+        s = self.reads.read(self.board.read_imu, True)
+        if s is None:
             return None
         values = nav3_values(s, self.cal)
         if self._truth is not None:

@@ -5,7 +5,7 @@ default (``sync = true``): the runtime asks the group's sync service for a slot 
 ``ctx.grant`` (the sync turn) while the step runs; the driver checks it at the trigger, and
 the ping is announced with that grant. Counters:
 ``pings``, ``crosstalk`` (readings corrupted by another sonar of the group sounding at the
-same time), ``dropouts``.
+same time), ``dropouts``, ``disconnected`` (:mod:`hera.nodes.board_reads`).
 
 Its arguments are declared in :data:`SONAR_ARGS` (``hera measures sonar`` lists
 them); the board arguments are those of :func:`hera.nodes.boards.open_sonar`.
@@ -18,8 +18,9 @@ from typing import Any
 
 from hera.measure import Measure, MeasureContext, Reading
 from hera.nodes import boards
+from hera.nodes.board_reads import BoardReads
 from hera.nodes.boards import BOARD_ARGS
-from hera.nodes.driver import NoReading, SimulatedSonar
+from hera.nodes.driver import SimulatedSonar
 from hera.nodes.sonar_model import INCH
 from hera.nodes.truth import TruthRecorder, want_truth
 from hera.schema import BOOL, STR, Setting, Table, list_of, number
@@ -66,6 +67,7 @@ class Sonar(Measure):
         args = self.prepare_args(args)
         super().init(args, ctx)
         self.board = boards.open_sonar(ctx, args)
+        self.reads = BoardReads(ctx)
         self.max_range = args["max_range"]
         self.sim = self.board if isinstance(self.board, SimulatedSonar) else None
         pos = boards.sonar_mount(ctx, args).position
@@ -84,12 +86,10 @@ class Sonar(Measure):
             ctx.log.warning("truth asked but there is no run directory: not recorded")
 
     def measure(self) -> Reading | None:
-        try:
-            # the driver checks the sync turn at its trigger (the simulator also announces
-            # the grant with its ping)
-            s = self.board.read_sample(self.ctx.grant)
-        except NoReading:
-            self.ctx.count("dropouts")
+        # the driver checks the sync turn at its trigger (the simulator also announces the
+        # grant with its ping)
+        s = self.reads.read(self.board.read_sample, self.ctx.grant)
+        if s is None:
             return None
         self.ctx.count("pings")
         if s.crosstalk:

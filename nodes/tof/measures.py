@@ -4,7 +4,7 @@ Publishes every ranging, valid or not, as ``[distance [m], ambient [Mcps], signa
 status, x [m], y [m]]``: the seed's four-value vector, then where the sensor sits on the
 carrier board (so the geometry travels with the data, as the sonar's position does). The
 fusion models decide what to trust from the status. Counters: ``rangings``, ``invalid``
-(status other than 0), ``dropouts``.
+(status other than 0), ``dropouts``, ``disconnected`` (:mod:`hera.nodes.board_reads`).
 
 Where the sensor sits: ``position = [x, y]`` (m, carrier frame: x right, y forward, origin at
 the centre sensor), else the default of ``sensor`` (``left``, ``centre``, ``right``: the
@@ -21,8 +21,9 @@ from typing import Any
 
 from hera.measure import Measure, MeasureContext, Reading
 from hera.nodes import boards
+from hera.nodes.board_reads import BoardReads
 from hera.nodes.boards import BOARD_ARGS
-from hera.nodes.driver import NoReading, SimulatedBoard
+from hera.nodes.driver import SimulatedBoard
 from hera.nodes.tof.driver import TofDriver
 from hera.nodes.tof.model import TOF_MODEL, TofModel
 from hera.nodes.tof.sim import SimVl53l1
@@ -99,6 +100,7 @@ class Vl53l1(Measure):
         pos = args["position"]
         self.mount = (float(pos[0]), float(pos[1])) if pos else MOUNTS[args["sensor"]]
         self.board = open_tof(ctx, args, self.mount)
+        self.reads = BoardReads(ctx)
         self._truth: TruthRecorder | None = None
         if want_truth(args, ctx.run_dir) and isinstance(self.board, SimVl53l1):
             self._truth = TruthRecorder(
@@ -110,10 +112,8 @@ class Vl53l1(Measure):
             )
 
     def measure(self) -> Reading | None:
-        try:
-            r = self.board.read_ranging()
-        except NoReading:
-            self.ctx.count("dropouts")
+        r = self.reads.read(self.board.read_ranging)
+        if r is None:
             return None
         self.ctx.count("rangings")
         if r.status != 0:

@@ -50,13 +50,16 @@ def test_dropout_gives_no_reading_and_is_counted() -> None:
     assert m.measure() is not None
 
 
-def test_disconnect_raises_an_os_error_until_cleared() -> None:
+def test_disconnect_makes_every_read_raise_until_cleared() -> None:
     m, ctx = _nav3()
     faults.set_fault(boards_of(ctx), "n1/nav", "disconnect")
+    with pytest.raises(BoardDisconnected):  # an OSError, as an I2C error would be
+        m.board.read_imu(mag=True)
     with pytest.raises(OSError):
-        m.measure()
-    with pytest.raises(BoardDisconnected):
-        m.measure()
+        m.board.read_acc()
+    # the measure publishes nothing and counts it (hera.nodes.board_reads)
+    assert [m.measure() for _ in range(2)] == [None, None]
+    assert ctx.counters["disconnected"] == 2
     faults.clear_fault(boards_of(ctx), "n1/nav")
     assert m.measure() is not None
 
@@ -84,8 +87,9 @@ def test_sonar_faults() -> None:
     faults.set_fault(b, "n1/sonar", "bias", value=100)
     assert s.measure().values[0] == pytest.approx(1.95 + 100 * 0.0254, abs=0.06)
     faults.set_fault(b, "n1/sonar", "disconnect")
-    with pytest.raises(OSError):
-        s.measure()
+    with pytest.raises(BoardDisconnected):
+        s.board.read_sample()
+    assert s.measure() is None and ctx.counters["disconnected"] == 1
     faults.clear_fault(b, "n1/sonar")
     assert s.measure().values[0] == pytest.approx(1.95, abs=0.06)
 

@@ -123,6 +123,18 @@ def test_problems_and_starting_nodes_are_said():
     assert "problems: nav_1/mag backoff x2 (ValueError: bad); nav_1 rejected malformed=3" in text
 
 
+def test_a_measure_in_trouble_is_a_problem_while_it_lasts():
+    status, launcher = _train_status()
+    mag = status["nav_1"]["measures"]["mag"]
+    mag["trouble"] = "board not answering (I2C bus error)"
+    text = render_view("train", status, launcher, width=120, height=40)
+    assert "problems: nav_1/mag board not answering (I2C bus error)" in text
+    detail = render_node({**status["nav_1"], "node": "nav_1", "cluster": "train"})
+    assert "now: board not answering (I2C bus error)" in detail
+    mag["trouble"] = None
+    assert "problems" not in render_view("train", status, launcher, width=120, height=40)
+
+
 def test_the_observers_count_shows_per_node():
     samples = [
         {"name": f"obs{j}", "node": f"n{i}", "t": 1.0, "values": [20.0 - (i == 3)]}

@@ -1,0 +1,97 @@
+"""What a board measure does when its driver fails: count it, say it once, go on.
+
+Every measure that reads a board through the protocols of :mod:`hera.nodes.driver` makes
+its reads through one :class:`BoardReads`. A read gives the driver's sample, or None (the
+measure publishes nothing that step) when the driver raises:
+
+- :class:`~hera.nodes.driver.NoReading`, a dropout: counts ``dropouts``;
+- :class:`~hera.nodes.driver.BoardDisconnected`, the board unreachable: counts
+  ``disconnected``. The first read of an outage is a warning in the node's log, then one
+  every :data:`WARN_EVERY_S` while it lasts, and the first sample after it an info line
+  saying how long the board was away. While it lasts the measure's ``trouble`` says so
+  (``hera status``, the live view's problems line).
+
+The measure keeps running and reads again at its next step; a driver reconnects inside its
+read (as :class:`~hera.nodes.serial_sonar.SerialMaxSonar` reopens its port). So a sensor
+unplugged for a while neither crash-loops its measure until the supervisor's restart
+intensity is spent (which ends the node process and, with it, the node's other measures)
+nor needs an operator to start it again: its readings come back by themselves.
+
+Only the reads of a running measure are covered: a board that cannot be reached while a
+measure starts (a calibration in ``init``) fails the start, which the supervisor retries
+with its backoff.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+from hera.measure import MeasureContext
+from hera.nodes.driver import BoardDisconnected, NoReading
+
+T = TypeVar("T")
+
+WARN_EVERY_S = 5.0
+"""Seconds between two warnings of one outage in the node's log."""
+
+
+class BoardReads:
+    """One measure's reads of its board; see the module docstring.
+
+    ``clock``: monotonic seconds, for the pace of the warnings and the length of an outage
+    (injected by tests).
+    """
+
+    def __init__(self, ctx: MeasureContext, clock: Callable[[], float] = time.monotonic) -> None:
+        self.ctx = ctx
+        self._clock = clock
+        self._away_since: float | None = None  # start of the current outage
+        self._warned_at = 0.0
+
+    @property
+    def away(self) -> bool:
+        """True while the board is unreachable (its last read raised BoardDisconnected)."""
+        return self._away_since is not None
+
+    def read(self, read: Callable[..., T], *args: Any) -> T | None:
+        """``read(*args)``'s sample, or None after a dropout or a disconnected board (counted
+        and logged as the module docstring says). Other errors propagate: a measure that
+        cannot make sense of its board crashes and is restarted."""
+        try:
+            sample = read(*args)
+        except NoReading:
+            self.ctx.count("dropouts")
+            return None
+        except BoardDisconnected as e:
+            self._disconnected(e)
+            return None
+        if self._away_since is not None:
+            self.ctx.log.info(
+                "%s: the board answers again after %.1f s away",
+                self._name(),
+                self._clock() - self._away_since,
+            )
+            self._away_since = None
+            self.ctx.trouble = None
+        return sample
+
+    def _disconnected(self, error: BoardDisconnected) -> None:
+        self.ctx.count("disconnected")
+        now = self._clock()
+        if self._away_since is None:
+            self._away_since = now
+            self.ctx.trouble = f"board not answering ({error})"
+        elif now - self._warned_at < WARN_EVERY_S:
+            return
+        self._warned_at = now
+        self.ctx.log.warning(
+            "%s: %s (disconnected for %.1f s; reading again every step)",
+            self._name(),
+            error,
+            now - self._away_since,
+        )
+
+    def _name(self) -> str:
+        return self.ctx.spec.name or "measure"
