@@ -55,12 +55,12 @@ class BoardReads:
         """True while the board is unreachable (its last read raised BoardDisconnected)."""
         return self._away_since is not None
 
-    def read(self, read: Callable[..., T], *args: Any) -> T | None:
-        """``read(*args)``'s sample, or None after a dropout or a disconnected board (counted
-        and logged as the module docstring says). Other errors propagate: a measure that
-        cannot make sense of its board crashes and is restarted."""
+    def read(self, read: Callable[..., T], *args: Any, **kwargs: Any) -> T | None:
+        """``read(*args, **kwargs)``'s sample, or None after a dropout or a disconnected
+        board (counted and logged as the module docstring says). Other errors propagate: a
+        measure that cannot make sense of its board crashes and is restarted."""
         try:
-            sample = read(*args)
+            sample = read(*args, **kwargs)
         except NoReading:
             self.ctx.count("dropouts")
             return None

@@ -168,7 +168,7 @@ class FaultState:
             return
         if f.kind == "disconnect":
             self.applied += 1
-            raise BoardDisconnected(f"board disconnected (simulated fault) reading {sensor}")
+            raise BoardDisconnected(f"simulated disconnection, reading {sensor}")
         if f.kind == "dropout" and rng.random() < f.params.get("prob", 1.0):
             self.applied += 1
             raise NoReading(f"no {sensor} reading (simulated dropout)")

@@ -128,7 +128,7 @@ class Nav(_NavMeasure):
         self.sin_tilt = float(cal["sin_tilt"])
 
     def measure(self) -> Reading | None:
-        s = self.reads.read(self.board.read_imu, False)
+        s = self.reads.read(self.board.read_imu, mag=False)
         if s is None:
             return None
         a = rotate_y(gm.sub(s.acc, self.acc0), self.sin_tilt)
@@ -177,7 +177,7 @@ class Mag(_NavMeasure):
         self._yaw0 = _yaw(b.rest_truth().orientation) if isinstance(b, SimulatedBoard) else 0.0
 
     def measure(self) -> Reading | None:
-        s = self.reads.read(self.board.read_imu, True)
+        s = self.reads.read(self.board.read_imu, mag=True)
         if s is None:
             return None
         m = s.mag
@@ -284,7 +284,7 @@ class Nav3(_NavMeasure):
         self.mag0: gm.Vec3 = tuple(self.cal["mag"])  # type: ignore[assignment]
 
     def measure(self) -> Reading | None:
-        s = self.reads.read(self.board.read_imu, True)
+        s = self.reads.read(self.board.read_imu, mag=True)
         if s is None:
             return None
         values = nav3_values(s, self.cal)
