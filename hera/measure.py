@@ -120,6 +120,17 @@ def readings_of(
     return [Reading(result, t)]
 
 
+class NotReady(Exception):
+    """Raised by a measure's ``init`` when something it needs is not there yet (a board that
+    does not answer): ``str()`` says what, in a few words.
+
+    Not a crash: the worker keeps the measure waiting, sets its ``trouble`` to that, and calls
+    ``init`` again on a fresh instance every :data:`hera.worker.NOT_READY_RETRY_S`, until it
+    starts or is stopped. The supervisor's restart intensity is not spent, so a sensor missing
+    when its node starts does not crash-loop the node down with its other measures.
+    """
+
+
 class MeasureSpecError(ValueError):
     """A measure's settings break a rule: ``str()`` is "measure 'NAME': SENTENCE";
     ``sentence`` alone, for a caller that names the measure its own way."""
@@ -373,7 +384,8 @@ class Measure:
         return cls.arguments.parse(args, f"measure {cls.__name__} args")
 
     def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
-        """Prepare the measure from its arguments; raise to refuse them (clear message)."""
+        """Prepare the measure from its arguments; raise to refuse them (clear message), or
+        :class:`NotReady` to be tried again later."""
         self.ctx = ctx
 
     def measure(self) -> Sequence[float] | Reading | list[Reading] | None:

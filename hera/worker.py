@@ -21,6 +21,10 @@ its first step at once in its own thread, then has the beat's thread run its lat
 (:meth:`Worker.beat_step`) while its own thread waits for the end; everything else is the
 same.
 
+A measure whose ``init`` raises :class:`~hera.measure.NotReady` waits: its ``trouble`` says
+why, and ``init`` is tried again every :data:`NOT_READY_RETRY_S` until it starts or the
+worker is stopped (no crash, no restart).
+
 The worker publishes what the measure returns through the node's ``publish`` function and
 reports its exit (normal or with the exception) to its supervisor.
 """
@@ -39,10 +43,13 @@ from typing import Any
 
 from hera import wallclock
 from hera.beat import Beat
-from hera.measure import Measure, MeasureContext, Reading, own_keys, readings_of
+from hera.measure import Measure, MeasureContext, NotReady, Reading, own_keys, readings_of
 from hera.stopflag import StopFlag
 
 log = logging.getLogger("hera.worker")
+
+NOT_READY_RETRY_S = 2.0
+"""Seconds between two tries of a measure's ``init`` that raised NotReady."""
 
 
 class InjectedFault(RuntimeError):
@@ -208,8 +215,8 @@ class Worker:
         error: BaseException | None = None
         unfollow = None
         try:
-            self.measure = self.measure_cls()
-            self.measure.init(self.args, self.ctx)
+            if not self._init_when_ready():
+                return
             unfollow = self._follow_args()
             self.ready.set()
             if self._gate is not None and not self._wait_gate():
@@ -244,6 +251,41 @@ class Worker:
             if error is None:
                 self._hand_over()
             self._on_exit(self, error)
+
+    def _init_when_ready(self) -> bool:
+        """Create and init the measure; while ``init`` raises NotReady, say why and try again
+        every NOT_READY_RETRY_S. False if the worker was stopped while waiting."""
+        waiting_since: float | None = None
+        while True:
+            self.measure = self.measure_cls()
+            try:
+                self.measure.init(self.args, self.ctx)
+            except NotReady as e:
+                failed, self.measure = self.measure, None
+                try:
+                    failed.close()
+                except Exception as ce:  # what init opened, half done
+                    log.warning("measure %s close() failed: %s", self.spec.name, ce)
+                self.ctx.trouble = f"waiting to start: {e}"
+                if waiting_since is None:
+                    waiting_since = time.monotonic()
+                    log.warning(
+                        "measure %s waits to start: %s (trying again every %g s)",
+                        self.spec.name,
+                        e,
+                        NOT_READY_RETRY_S,
+                    )
+                if self._stop.wait(NOT_READY_RETRY_S) or self.abandoned:
+                    return False
+                continue
+            if waiting_since is not None:
+                self.ctx.trouble = None
+                log.info(
+                    "measure %s started after waiting %.1f s",
+                    self.spec.name,
+                    time.monotonic() - waiting_since,
+                )
+            return True
 
     def _hand_over(self) -> None:
         with self._retire_lock:

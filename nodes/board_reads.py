@@ -17,18 +17,21 @@ unplugged for a while neither crash-loops its measure until the supervisor's res
 intensity is spent (which ends the node process and, with it, the node's other measures)
 nor needs an operator to start it again: its readings come back by themselves.
 
-Only the reads of a running measure are covered: a board that cannot be reached while a
-measure starts (a calibration in ``init``) fails the start, which the supervisor retries
-with its backoff.
+At the start, :func:`board_needed` around what a measure's ``init`` does with its board
+(open it, calibrate on it) turns a board that does not answer into
+:class:`~hera.measure.NotReady`: the measure waits and its ``init`` is tried again every
+2 s (:mod:`hera.worker`), so a sensor missing when its node starts does not crash-loop the
+node down either.
 """
 
 from __future__ import annotations
 
+import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any, TypeVar
 
-from hera.measure import MeasureContext
+from hera.measure import MeasureContext, NotReady
 from hera.nodes.driver import BoardDisconnected, NoReading
 
 T = TypeVar("T")
@@ -95,3 +98,13 @@ class BoardReads:
 
     def _name(self) -> str:
         return self.ctx.spec.name or "measure"
+
+
+@contextlib.contextmanager
+def board_needed() -> Iterator[None]:
+    """Around a measure's start: a board that does not answer (BoardDisconnected) raises
+    NotReady instead, so the measure waits for it rather than crashing."""
+    try:
+        yield
+    except BoardDisconnected as e:
+        raise NotReady(f"board not answering ({e})") from e

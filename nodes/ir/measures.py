@@ -15,7 +15,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from hera.measure import Measure, MeasureContext, Reading
-from hera.nodes.board_reads import BoardReads
+from hera.nodes.board_reads import BoardReads, board_needed
 from hera.nodes.boards import BOARD_ARGS
 from hera.nodes.ir.boards import open_ir, open_thermocouple, thermocouple_position
 from hera.nodes.ir.driver import PosedIr, SimulatedIr, SimulatedThermocouple
@@ -96,7 +96,8 @@ class SharpIr(_Board):
     def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
         args = self.prepare_args(args)
         super().init(args, ctx)
-        self.board = open_ir(ctx, args)
+        with board_needed():
+            self.board = open_ir(ctx, args)
         self.reads = BoardReads(ctx)
         pos = args["position_cm"] or (0.0, 0.0)
         self.mount = (float(pos[0]), float(pos[1]), float(args["heading_deg"]))
@@ -123,7 +124,8 @@ class Thermocouple(_Board):
     def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
         args = self.prepare_args(args)
         super().init(args, ctx)
-        self.board = open_thermocouple(ctx, args)
+        with board_needed():
+            self.board = open_thermocouple(ctx, args)
         self.reads = BoardReads(ctx)
         self.position = thermocouple_position(ctx, args)
         self._open_truth(args, ctx, "true temperature [degC]")

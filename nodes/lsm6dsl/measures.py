@@ -28,7 +28,7 @@ from typing import Any
 
 from hera.measure import Measure, MeasureContext, Reading
 from hera.nodes import boards
-from hera.nodes.board_reads import BoardReads
+from hera.nodes.board_reads import BoardReads, board_needed
 from hera.nodes.boards import BOARD_ARGS
 from hera.nodes.calibration import calib_key, is_vec
 from hera.nodes.lsm6dsl.calibration import GyroCalibration
@@ -163,7 +163,8 @@ class Lsm6dsl(Measure):
                 f"measure {ctx.spec.name!r}: period {period:g} s does not match odr_hz {odr:g}; "
                 f"give period = {1.0 / odr:.6g} (1 / odr_hz)"
             )
-        self.board = open_imu(ctx, args)
+        with board_needed():
+            self.board = open_imu(ctx, args)
         self.reads = BoardReads(ctx)
         self.key = calib_key(ctx)
         self.desk = CalibrationDesk.of(ctx.resources)

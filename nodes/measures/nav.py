@@ -13,13 +13,13 @@ ill-typed ones are refused before a node starts.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
 from hera.measure import Measure, MeasureContext, Reading
 from hera.nodes import boards
 from hera.nodes import geometry as gm
-from hera.nodes.board_reads import BoardReads
+from hera.nodes.board_reads import BoardReads, board_needed
 from hera.nodes.boards import BOARD_ARGS
 from hera.nodes.calibration import (
     calibrate_mag,
@@ -69,7 +69,8 @@ class _NavMeasure(Measure):
         """Open the board and the truth recorder; return the args with their defaults."""
         args = self.prepare_args(args)
         super().init(args, ctx)
-        self.board = boards.open_nav(ctx, args)
+        with board_needed():
+            self.board = boards.open_nav(ctx, args)
         self.reads = BoardReads(ctx)
         self._truth = None
         if want_truth(args, ctx.run_dir):
@@ -83,6 +84,14 @@ class _NavMeasure(Measure):
         elif args.get("truth"):
             ctx.log.warning("truth asked but there is no run directory: not recorded")
         return args
+
+    def _calibration(
+        self, run: Callable[[], dict[str, Any]], check: Callable[[Any], bool]
+    ) -> dict[str, Any]:
+        """The stored calibration, else one made on the board now (``stored_or_run``); a
+        board that does not answer makes the measure wait for it (NotReady)."""
+        with board_needed():
+            return stored_or_run(self.ctx, run, check)
 
     def _state(self, t: float) -> State | None:
         b = self.board
@@ -113,8 +122,7 @@ class Nav(_NavMeasure):
     def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
         args = self._setup(args, ctx)
         n = args["calib_samples"]
-        cal = stored_or_run(
-            ctx,
+        cal = self._calibration(
             lambda: calibrate_nav(self.board, n),
             lambda c: (
                 isinstance(c, Mapping)
@@ -164,8 +172,7 @@ class Mag(_NavMeasure):
         args = self._setup(args, ctx)
         self.sign = 1.0 if args["clockwise"] else -1.0
         n = args["calib_samples"]
-        cal = stored_or_run(
-            ctx,
+        cal = self._calibration(
             lambda: calibrate_mag(self.board, n=n),
             lambda c: (
                 isinstance(c, Mapping) and is_vec(c.get("bias"), 2) and is_vec([c.get("offset")], 1)
@@ -262,8 +269,7 @@ class Nav3(_NavMeasure):
         args = self._setup(args, ctx)
         n = args["calib_samples"]
         full = args["calibration"] == "full"
-        self.cal = stored_or_run(
-            ctx,
+        self.cal = self._calibration(
             lambda: calibrate_nav3(self.board, n_gyro=n, full=full),
             lambda c: (
                 isinstance(c, Mapping)

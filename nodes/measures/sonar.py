@@ -18,7 +18,7 @@ from typing import Any
 
 from hera.measure import Measure, MeasureContext, Reading
 from hera.nodes import boards
-from hera.nodes.board_reads import BoardReads
+from hera.nodes.board_reads import BoardReads, board_needed
 from hera.nodes.boards import BOARD_ARGS
 from hera.nodes.driver import SimulatedSonar
 from hera.nodes.sonar_model import INCH
@@ -66,7 +66,8 @@ class Sonar(Measure):
     def init(self, args: Mapping[str, Any], ctx: MeasureContext) -> None:
         args = self.prepare_args(args)
         super().init(args, ctx)
-        self.board = boards.open_sonar(ctx, args)
+        with board_needed():
+            self.board = boards.open_sonar(ctx, args)
         self.reads = BoardReads(ctx)
         self.max_range = args["max_range"]
         self.sim = self.board if isinstance(self.board, SimulatedSonar) else None

@@ -21,7 +21,7 @@ from typing import Any
 
 from hera.measure import Measure, MeasureContext, Reading
 from hera.nodes import boards
-from hera.nodes.board_reads import BoardReads
+from hera.nodes.board_reads import BoardReads, board_needed
 from hera.nodes.boards import BOARD_ARGS
 from hera.nodes.driver import SimulatedBoard
 from hera.nodes.tof.driver import TofDriver
@@ -99,7 +99,8 @@ class Vl53l1(Measure):
         super().init(args, ctx)
         pos = args["position"]
         self.mount = (float(pos[0]), float(pos[1])) if pos else MOUNTS[args["sensor"]]
-        self.board = open_tof(ctx, args, self.mount)
+        with board_needed():
+            self.board = open_tof(ctx, args, self.mount)
         self.reads = BoardReads(ctx)
         self._truth: TruthRecorder | None = None
         if want_truth(args, ctx.run_dir) and isinstance(self.board, SimVl53l1):

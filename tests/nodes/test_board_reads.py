@@ -9,7 +9,9 @@ import logging
 import pytest
 from nodes_helpers import FakeClock, make_ctx
 
-from hera.nodes.board_reads import WARN_EVERY_S, BoardReads
+from hera.measure import NotReady
+from hera.nodes import boards
+from hera.nodes.board_reads import WARN_EVERY_S, BoardReads, board_needed
 from hera.nodes.driver import BoardDisconnected, NoReading
 from hera.nodes.ir.measures import SharpIr, Thermocouple
 from hera.nodes.lsm6dsl.measures import Lsm6dsl
@@ -132,3 +134,31 @@ def test_every_board_measure_goes_on_through_an_unplugged_board(name: str) -> No
     m.board.faults.clear()
     assert m.measure() is not None  # back at the next step, without a restart
     m.close()
+
+
+# -- a board that does not answer when its measure starts ------------------------------------
+
+
+def test_board_needed_turns_a_disconnected_board_into_not_ready() -> None:
+    says = r"^board not answering \(I2C bus error\)$"
+    with pytest.raises(NotReady, match=says), board_needed():
+        raise BoardDisconnected("I2C bus error")
+    with pytest.raises(NoReading), board_needed():  # a dropout is no reason to wait
+        raise NoReading("none")
+
+
+@pytest.mark.parametrize("cls", [Nav, Mag, Nav3])
+def test_a_nav_measure_waits_for_its_board_to_calibrate_unless_it_has_a_calibration(cls):
+    world = {"scenario": "still", "epoch": 0.0}
+    ctx = make_ctx(cls.name, world)
+    boards.open_nav(ctx, {}).faults.set("disconnect")  # the node's board, unplugged
+    with pytest.raises(NotReady, match="board not answering"):
+        cls().init({"calib_samples": 5}, ctx)
+    boards.of(ctx.resources).get("nav").faults.clear()
+    m = cls()
+    m.init({"calib_samples": 5}, ctx)  # plugged in: it calibrates (and stores it)
+    assert m.measure() is not None
+    boards.of(ctx.resources).get("nav").faults.set("disconnect")
+    again = cls()
+    again.init({"calib_samples": 5}, ctx)  # the stored calibration: no read needed to start
+    assert again.measure() is None and ctx.counters["disconnected"] == 1

@@ -133,6 +133,23 @@ def test_stuck_then_cleared_then_disconnected_then_bad_requests(cluster):
     assert m["state"] == "running" and m["crashes"] == 0 and m["trouble"] is None, m
     assert c.pid("n1") == pid, "node n1 was restarted"
 
+    # unplugged when nav starts, with no calibration stored: it waits for its board (no
+    # crash, so no restarts spent), then calibrates and publishes once the board answers
+    assert c.control("n1", "stop", {"measure": "nav"})["ok"]
+    assert c.control("n1", "args", {"op": "del", "key": "calib/n1/nav"})["deleted"]
+    _inject(c, board="n1/nav", fault="disconnect")
+    assert c.control("n1", "start", {"measure": "nav"})["ok"]
+    m = wait_for(lambda: (m := _nav(c))["trouble"] and m, 15, "nav to wait for its board")
+    assert m["trouble"].startswith("waiting to start: board not answering"), m
+    assert m["state"] == "running" and m["crashes"] == 0, m
+    _inject(c, board="n1/nav", fault="clear")
+    back = watch.after(_nav(c)["seq"], N, "once the board answered at start")
+    assert len(set(back)) > 1
+    m = _nav(c)
+    assert m["trouble"] is None and m["crashes"] == 0, m
+    assert c.control("n1", "args", {"op": "get", "key": "calib/n1/nav"})["value"]["n"] == 50
+    assert c.pid("n1") == pid
+
     # bad requests: ok=false and an error naming what was wrong; nothing changes
     def bad(node: str, request: dict, *words: str) -> None:
         reply = c.control(node, "board", request)

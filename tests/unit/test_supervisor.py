@@ -9,7 +9,8 @@ import pytest
 from harness import wait_for
 from nodes_helpers import make_ctx
 
-from hera.measure import Measure
+from hera import worker
+from hera.measure import Measure, NotReady
 from hera.supervisor import Child, Supervisor
 from hera.worker import Worker
 
@@ -217,5 +218,60 @@ def test_stop_cancels_a_pending_restart():
         n = len(args["inits"])
         time.sleep(0.3)  # longer than any pending delay so far: nothing may start
         assert len(args["inits"]) == n and sup.children["a"].state == "stopped"
+    finally:
+        sup.shutdown()
+
+
+class WaitsForItsBoard(Measure):
+    """``init`` raises NotReady until ``args["plugged"]`` is set; then publishes 1.0."""
+
+    def init(self, args, ctx):
+        super().init(args, ctx)
+        args["tries"].append(time.monotonic())
+        if not args["plugged"].is_set():
+            raise NotReady("board not answering (unplugged)")
+
+    def measure(self):
+        return [1.0]
+
+
+def _waiting_child(args, published) -> Child:
+    def start(on_exit):
+        ctx = make_ctx("a", period=0.01, restart="permanent")
+        return Worker(WaitsForItsBoard, args, ctx, lambda n, r, g: published.append(r), on_exit)
+
+    return Child("a", start, "permanent")
+
+
+def test_a_measure_not_ready_at_start_waits_without_crashing_then_starts(monkeypatch):
+    monkeypatch.setattr(worker, "NOT_READY_RETRY_S", 0.02)
+    sup = Supervisor(intensity=0, period=60)  # a single crash would escalate
+    args, pub = {"tries": [], "plugged": threading.Event()}, []
+    sup.add(_waiting_child(args, pub))
+    try:
+        wait_for(lambda: len(args["tries"]) >= 5, 10, "5 tries of init")
+        c = sup.children["a"]
+        assert (c.state, c.crashes, c.restarts, sup.escalated) == ("running", 0, 0, None)
+        assert c.worker.ctx.trouble == "waiting to start: board not answering (unplugged)"
+        assert pub == []
+        gaps = [b - a for a, b in zip(args["tries"], args["tries"][1:], strict=False)]
+        assert min(gaps) >= 0.02 - 0.005, gaps  # not a busy loop
+        args["plugged"].set()
+        wait_for(lambda: pub, 10, "the first sample once the board answers")
+        assert c.worker.ctx.trouble is None and c.crashes == 0 and c.state == "running"
+    finally:
+        sup.shutdown()
+
+
+def test_a_waiting_measure_stops_when_asked_without_waiting_out_its_retry(monkeypatch):
+    monkeypatch.setattr(worker, "NOT_READY_RETRY_S", 60.0)
+    sup = Supervisor()
+    args, pub = {"tries": [], "plugged": threading.Event()}, []
+    sup.add(_waiting_child(args, pub))
+    try:
+        wait_for(lambda: sup.children["a"].worker.ctx.trouble, 10, "the measure to wait")
+        sup.stop_child("a")
+        wait_for(lambda: sup.children["a"].state == "stopped", 5, "the waiting measure to stop")
+        assert len(args["tries"]) == 1 and sup.children["a"].crashes == 0
     finally:
         sup.shutdown()
