@@ -5,7 +5,9 @@ its reads through one :class:`BoardReads`. A read gives the driver's sample, or 
 measure publishes nothing that step) when the driver raises:
 
 - :class:`~hera.nodes.driver.NoReading`, a dropout: counts ``dropouts``;
-- :class:`~hera.nodes.driver.BoardDisconnected`, the board unreachable: counts
+- :class:`~hera.nodes.driver.BoardDisconnected`, the board unreachable, or any other
+  ``OSError`` the driver lets through (a read of an unplugged I2C chip raises
+  ``OSError(EREMOTEIO)``; a serial port without permission ``PermissionError``): counts
   ``disconnected``. The first read of an outage is a warning in the node's log, then one
   every :data:`WARN_EVERY_S` while it lasts, and the first sample after it an info line
   saying how long the board was away. While it lasts the measure's ``trouble`` says so
@@ -32,7 +34,7 @@ from collections.abc import Callable, Iterator
 from typing import Any, TypeVar
 
 from hera.measure import MeasureContext, NotReady
-from hera.nodes.driver import BoardDisconnected, NoReading
+from hera.nodes.driver import NoReading
 
 T = TypeVar("T")
 
@@ -55,7 +57,8 @@ class BoardReads:
 
     @property
     def away(self) -> bool:
-        """True while the board is unreachable (its last read raised BoardDisconnected)."""
+        """True while the board is unreachable (its last read raised an OSError other than
+        NoReading)."""
         return self._away_since is not None
 
     def read(self, read: Callable[..., T], *args: Any, **kwargs: Any) -> T | None:
@@ -67,7 +70,7 @@ class BoardReads:
         except NoReading:
             self.ctx.count("dropouts")
             return None
-        except BoardDisconnected as e:
+        except OSError as e:  # BoardDisconnected, or a bus error the driver let through
             self._disconnected(e)
             return None
         if self._away_since is not None:
@@ -80,7 +83,7 @@ class BoardReads:
             self.ctx.trouble = None
         return sample
 
-    def _disconnected(self, error: BoardDisconnected) -> None:
+    def _disconnected(self, error: OSError) -> None:
         self.ctx.count("disconnected")
         now = self._clock()
         if self._away_since is None:
@@ -102,9 +105,12 @@ class BoardReads:
 
 @contextlib.contextmanager
 def board_needed() -> Iterator[None]:
-    """Around a measure's start: a board that does not answer (BoardDisconnected) raises
-    NotReady instead, so the measure waits for it rather than crashing."""
+    """Around a measure's start: a board that does not answer (BoardDisconnected, or another
+    OSError but NoReading) raises NotReady instead, so the measure waits for it rather than
+    crashing."""
     try:
         yield
-    except BoardDisconnected as e:
+    except NoReading:
+        raise
+    except OSError as e:
         raise NotReady(f"board not answering ({e})") from e

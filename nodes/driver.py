@@ -22,7 +22,9 @@ Times: a driver stamps its readings with the node's wall clock (:mod:`hera.wallc
 
 Errors: a disconnected board raises :class:`BoardDisconnected` (an ``OSError``, as an I2C or
 UART error would); a reading that is simply missing this time raises :class:`NoReading`
-(measures answer "nothing this step").
+(measures answer "nothing this step"). The measures take any other ``OSError`` a driver lets
+through (an I2C read of an unplugged chip: ``EREMOTEIO``) as the board not answering, as
+:class:`BoardDisconnected` (:mod:`hera.nodes.board_reads`).
 """
 
 from __future__ import annotations

@@ -92,13 +92,20 @@ def test_a_second_outage_is_warned_at_once(caplog) -> None:
     assert [r.levelname for r in caplog.records] == ["WARNING", "INFO", "WARNING"]
 
 
-def test_other_errors_of_a_driver_are_not_swallowed(caplog) -> None:
+def test_a_bus_error_the_driver_lets_through_is_a_board_not_answering(caplog) -> None:
     reads, ctx, _ = _reads(caplog)
-    with pytest.raises(PermissionError):  # an OSError, but not a board that went away
-        reads.read(Script(PermissionError("permission denied")))
-    with pytest.raises(ValueError):
+    eremoteio = OSError(121, "Remote I/O error")  # smbus2 reading an unplugged I2C chip
+    read = Script(eremoteio, PermissionError(13, "Permission denied"), 3)
+    assert [reads.read(read) for _ in range(3)] == [None, None, 3]
+    assert ctx.counters == {"disconnected": 2}
+    assert "sonar: [Errno 121] Remote I/O error (disconnected for 0.0 s" in caplog.text
+
+
+def test_errors_that_are_no_os_error_are_not_swallowed(caplog) -> None:
+    reads, ctx, _ = _reads(caplog)
+    with pytest.raises(ValueError):  # the driver could not make sense of what it read
         reads.read(Script(ValueError("garbled")))
-    assert ctx.counters == {}
+    assert ctx.counters == {} and not reads.away
 
 
 # -- every board measure, on its simulator ---------------------------------------------------
@@ -143,8 +150,12 @@ def test_board_needed_turns_a_disconnected_board_into_not_ready() -> None:
     says = r"^board not answering \(I2C bus error\)$"
     with pytest.raises(NotReady, match=says), board_needed():
         raise BoardDisconnected("I2C bus error")
+    with pytest.raises(NotReady, match=r"\(\[Errno 121\] Remote I/O error\)$"), board_needed():
+        raise OSError(121, "Remote I/O error")
     with pytest.raises(NoReading), board_needed():  # a dropout is no reason to wait
         raise NoReading("none")
+    with pytest.raises(ValueError), board_needed():
+        raise ValueError("not a board's answer")
 
 
 @pytest.mark.parametrize("cls", [Nav, Mag, Nav3])
