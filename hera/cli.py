@@ -694,12 +694,13 @@ def _replay(args: argparse.Namespace) -> int:
         replay,
         with_producers,
     )
+    from hera.rundirs import folder_problem
 
-    if not Path(args.recordings).is_dir():
-        what = "not a folder" if Path(args.recordings).exists() else "no such folder"
+    problem = folder_problem(args.recordings)
+    if problem:
         raise ValueError(
-            f"{args.recordings}: {what}: give a run directory of 'hera up' (or of "
-            "'hera import') or a folder of <name>_<node>.csv recordings"
+            f"{problem}: give a run directory of 'hera up' (or of 'hera import') or a folder "
+            "of <name>_<node>.csv recordings"
         )
     spec_path = Path(args.recordings) / "cluster.json"
     recorded = _load(str(spec_path)) if spec_path.exists() else None

@@ -31,6 +31,7 @@ from hera.application import (
 from hera.fusion import spec_models
 from hera.plugins import AppIndex
 from hera.recordings import SOURCE_FILE, measures_dir, read_csv
+from hera.rundirs import folder_problem
 from hera.spec import ClusterSpec, load_spec
 
 
@@ -52,11 +53,10 @@ class Scored:
 def run_spec(run_dir: str | Path) -> ClusterSpec:
     """The resolved spec of a run (its ``cluster.json``); ValueError naming what is wrong
     when the folder is not there, is not a folder, or holds no run."""
-    folder = Path(run_dir)
-    if not folder.is_dir():
-        what = "not a folder" if folder.exists() else "no such folder"
-        raise ValueError(f"{run_dir}: {what}; give a run directory of 'hera up'")
-    path = folder / "cluster.json"
+    problem = folder_problem(run_dir)
+    if problem:
+        raise ValueError(f"{problem}; give a run directory of 'hera up'")
+    path = Path(run_dir) / "cluster.json"
     if not path.exists():
         raise ValueError(f"{run_dir}: no cluster.json; is it a run directory of 'hera up'?")
     return load_spec(path)

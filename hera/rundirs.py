@@ -96,3 +96,12 @@ def state_dir(cluster: str, run_dir: Path, given_run_dir: bool, base: Path = BAS
     if given_run_dir:
         return (Path(run_dir) / "state").resolve()
     return (base / f"{cluster}.state").resolve()
+
+
+def folder_problem(path: str | Path) -> str | None:
+    """``"PATH: no such folder"`` or ``"PATH: not a folder"`` for a folder argument that is
+    not one (a run directory to read), else None."""
+    folder = Path(path)
+    if folder.is_dir():
+        return None
+    return f"{path}: {'not a folder' if folder.exists() else 'no such folder'}"

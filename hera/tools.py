@@ -35,10 +35,13 @@ HELP_EXAMPLES = {
 COMMANDS = ("echo", "hz", "store", "args", "start", "stop", "reload", "view", "export")
 
 
-def cluster_options(p: argparse.ArgumentParser) -> None:
-    """The options that say which cluster a command talks to (see :func:`connect`)."""
+def cluster_options(p: argparse.ArgumentParser, remote: bool = True) -> None:
+    """The options that say which cluster a command talks to (see :func:`connect`);
+    ``remote``: also ``--connect`` and ``--cert``, to reach it from any host."""
     p.add_argument("--run-dir", help="run directory of the cluster (on this host)")
     p.add_argument("--cluster", help="name of the cluster, if several run")
+    if not remote:
+        return
     p.add_argument(
         "--connect",
         action="append",
@@ -106,8 +109,7 @@ def add_parsers(sub: Any, command: Any) -> None:
     x.add_argument("--mcap", required=True, metavar="OUT", help="the .mcap file to write")
     for p in (e, h, s, a, st, sp, r):
         cluster_options(p)
-    v.add_argument("--run-dir", help="run directory of the cluster (on this host)")
-    v.add_argument("--cluster", help="name of the cluster, if several run")
+    cluster_options(v, remote=False)
 
 
 def connect(args: argparse.Namespace) -> ClusterClient:
@@ -176,8 +178,8 @@ def _echo(client: ClusterClient, args: argparse.Namespace) -> int:
     )
 
     selector = stream_selector(client.keys, args.stream)
-    columns = stream_columns(client.spec) if client.spec is not None else {}
-    note = stream_note(client.spec, args.stream) if client.spec is not None else None
+    columns = stream_columns(client.spec)
+    note = stream_note(client.spec, args.stream)
     if note:
         print(f"hera echo: {note}", file=sys.stderr, flush=True)
     done = threading.Event()
@@ -213,7 +215,7 @@ def _echo(client: ClusterClient, args: argparse.Namespace) -> int:
 def _hz(client: ClusterClient, args: argparse.Namespace) -> int:
     from hera.watch import RateTable, stream_note, stream_selector
 
-    note = stream_note(client.spec, args.stream) if client.spec is not None else None
+    note = stream_note(client.spec, args.stream)
     if note:
         print(f"hera hz: {note}", file=sys.stderr, flush=True)
     table = RateTable(client.keys)
@@ -265,8 +267,7 @@ def _store(client: ClusterClient, args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(reply["samples"], indent=1))
     else:
-        columns = stream_columns(client.spec) if client.spec is not None else {}
-        print(format_store(reply["samples"], columns))
+        print(format_store(reply["samples"], stream_columns(client.spec)))
     return 0
 
 

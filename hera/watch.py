@@ -39,9 +39,12 @@ def stream_selector(keys: Keys, stream: str) -> str:
 
 def stream_note(spec: Any, stream: str) -> str | None:
     """A sentence for a stream argument that names no publication of the cluster's spec
-    (a typo shows at once rather than as silence), or None. Only a note: a measure started
-    at run time (``hera start``) may publish the name later."""
+    (a typo shows at once rather than as silence), or None (also without a spec). Only a
+    note: a measure started at run time (``hera start``) may publish the name later."""
     from fnmatch import fnmatchcase
+
+    if spec is None:
+        return None
 
     parts = stream.strip("/").split("/")
     names = sorted({str(m.name) for _, m in spec.measures()})
@@ -175,11 +178,11 @@ class RateTable:
 
 def stream_columns(spec: Any) -> dict[str, tuple[str, ...]]:
     """Publication name -> output columns of every measure of a cluster spec whose class
-    loads here (for naming values)."""
+    loads here (for naming values); none without a spec (a cluster reached by ``--connect``)."""
     from hera.plugins import find_measure
 
     out: dict[str, tuple[str, ...]] = {}
-    for _, m in spec.measures():
+    for _, m in spec.measures() if spec is not None else ():
         try:
             out.setdefault(str(m.name), tuple(find_measure(m.use).columns))
         except (LookupError, TypeError):
