@@ -224,7 +224,10 @@ def swap(node: Node, name: str, cls: type, timeout: float = START_TIMEOUT) -> di
     while not green.ready.wait(0.005):
         if failed or time.monotonic() > deadline:
             green.stop()
+            trouble = green.ctx.trouble  # a measure that waits to start says why
             why = failed[0] if failed else f"init took over {timeout:g} s"
+            if not failed and trouble:
+                why += f", {trouble}"
             raise ReloadError(f"measure {name}: the new code does not start ({why}); rolled back")
     handed = threading.Event()
     switched: list[float] = []

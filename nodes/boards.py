@@ -27,6 +27,7 @@ seeds). A simulator's error-model defaults are its world's (``Scenario.nav_model
 from __future__ import annotations
 
 import importlib
+import inspect
 import logging
 import math
 import threading
@@ -34,7 +35,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from hera.keys import Keys, check_chunk
-from hera.measure import MeasureContext
+from hera.measure import Measure, MeasureContext
 from hera.nodes import geometry as gm
 from hera.nodes.air import Air
 from hera.nodes.driver import NavDriver, SonarDriver
@@ -45,7 +46,7 @@ from hera.nodes.sim_sonar import SimMaxSonar
 from hera.nodes.sonar_model import SonarModel
 from hera.nodes.world import SonarMount, environment, epoch_of, make_scenario
 from hera.resources import Resources
-from hera.schema import BOOL, STR, TABLE, Setting, number
+from hera.schema import BOOL, STR, TABLE, Setting, did_you_mean, number
 
 log = logging.getLogger(__name__)
 
@@ -182,22 +183,85 @@ def _clock(ctx: MeasureContext, **virtual: Any) -> dict[str, Any]:
     return {} if clock is None else {"clock": clock, **virtual}
 
 
+def _driver_class(target: str) -> type:
+    """The class ``package.module:Class`` names; ValueError saying why it cannot be had."""
+    module, _, attr = str(target).partition(":")
+    try:
+        return getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError, ValueError) as e:
+        raise ValueError(f"driver {target!r} cannot be loaded: {e}") from None
+
+
+def _driver_args_problems(cls: type, target: str, kwargs: Mapping[str, Any]) -> list[str]:
+    """What is wrong with ``kwargs`` for ``cls``'s constructor: unknown or missing keys
+    (from its signature), then the values, when the class has a ``check_args(all_args)``
+    classmethod (all its arguments, defaults filled in; one sentence per problem)."""
+    params = inspect.signature(cls).parameters.values()
+    if any(p.kind is p.VAR_KEYWORD for p in params):
+        return []  # takes anything: only the constructor can say
+    named = [p.name for p in params if p.kind is p.POSITIONAL_OR_KEYWORD]
+    takes = f"{target} takes {', '.join(named) or 'none'}"
+    unknown = [
+        f"driver_args: unknown key {k!r}{did_you_mean(str(k), named)}; {takes}"
+        for k in kwargs
+        if k not in named
+    ]
+    missing = [
+        f"driver_args: {p.name} is required by {target}"
+        for p in params
+        if p.default is p.empty and p.kind is p.POSITIONAL_OR_KEYWORD and p.name not in kwargs
+    ]
+    check = getattr(cls, "check_args", None)
+    if missing or not callable(check):
+        return unknown + missing
+    bound = inspect.signature(cls).bind(**{k: v for k, v in kwargs.items() if k in named})
+    bound.apply_defaults()
+    return unknown + [f"driver_args: {p}" for p in check(dict(bound.arguments))]
+
+
+def driver_problems(args: Mapping[str, Any], where: str) -> list[str]:
+    """Problems with a board measure's ``driver`` and ``driver_args``, one sentence each
+    starting with ``where``, found before any node starts. A driver that cannot be imported
+    here is left to its node (it may be installed only on the board's host)."""
+    target, kwargs = args.get("driver"), args.get("driver_args") or {}
+    if not isinstance(target, str) or not isinstance(kwargs, Mapping):
+        return []  # none, or the schema's problem
+    module, sep, attr = target.partition(":")
+    if not (module and sep and attr):
+        return [f"{where}: driver must be 'package.module:Class', got {target!r}"]
+    try:
+        cls = _driver_class(target)
+    except ValueError:
+        return []
+    return [f"{where}: {p}" for p in _driver_args_problems(cls, target, kwargs)]
+
+
 def load_driver(args: Mapping[str, Any], protocol: type, what: str) -> Board | None:
     """The real driver the args name (``driver``, ``driver_args``), or None; ValueError when
-    it does not load or does not implement ``protocol`` (named ``what``). Board families in
-    their own packages use it too."""
+    it does not load, its arguments are wrong (:func:`driver_problems`) or it does not
+    implement ``protocol`` (named ``what``). Board families in their own packages use it
+    too."""
     target = args.get("driver")
     if target is None:
         return None
-    module, _, attr = str(target).partition(":")
-    try:
-        cls = getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError, ValueError) as e:
-        raise ValueError(f"driver {target!r} cannot be loaded: {e}") from None
-    board = cls(**dict(args.get("driver_args") or {}))
+    cls = _driver_class(str(target))
+    kwargs = dict(args.get("driver_args") or {})
+    problems = _driver_args_problems(cls, str(target), kwargs)
+    if problems:
+        raise ValueError(f"driver {target!r}: {'; '.join(problems)}")
+    board = cls(**kwargs)
     if not isinstance(board, protocol):
         raise ValueError(f"driver {target!r} does not implement the {what} driver protocol")
     return board
+
+
+class BoardMeasure(Measure):
+    """A measure that reads a board: its arguments' check (:meth:`Measure.check_args`, run
+    before any node starts) covers its driver's arguments too (:func:`driver_problems`)."""
+
+    @classmethod
+    def check_args(cls, args: Mapping[str, Any], where: str) -> list[str]:
+        return super().check_args(args, where) + driver_problems(args, where)
 
 
 def open_board(

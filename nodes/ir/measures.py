@@ -14,9 +14,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from hera.measure import Measure, MeasureContext, Reading
+from hera.measure import MeasureContext, Reading
 from hera.nodes.board_reads import BoardReads, board_needed
-from hera.nodes.boards import BOARD_ARGS
+from hera.nodes.boards import BOARD_ARGS, BoardMeasure
 from hera.nodes.ir.boards import open_ir, open_thermocouple, thermocouple_position
 from hera.nodes.ir.driver import PosedIr, SimulatedIr, SimulatedThermocouple
 from hera.nodes.ir.sharp import VARIANTS, variant
@@ -62,7 +62,7 @@ TC_ARGS = Table(
 )
 
 
-class _Board(Measure):
+class _Board(BoardMeasure):
     """Shared: the truth recorder and the board's reads (:mod:`hera.nodes.board_reads`)."""
 
     _truth: TruthRecorder | None = None

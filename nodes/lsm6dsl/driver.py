@@ -7,6 +7,9 @@ robot used 26 Hz); a read returns the latest output sample with the time it stan
 
 Errors: :class:`hera.nodes.driver.BoardDisconnected` (bus error),
 :class:`hera.nodes.driver.NoReading` (no new sample).
+
+Drivers: the simulator (:mod:`hera.nodes.lsm6dsl.sim`) and a real chip on an I2C bus
+(:mod:`hera.nodes.lsm6dsl.i2c`).
 """
 
 from __future__ import annotations

@@ -26,10 +26,10 @@ import threading
 from collections.abc import Mapping
 from typing import Any
 
-from hera.measure import Measure, MeasureContext, Reading
+from hera.measure import MeasureContext, Reading
 from hera.nodes import boards
 from hera.nodes.board_reads import BoardReads, board_needed
-from hera.nodes.boards import BOARD_ARGS
+from hera.nodes.boards import BOARD_ARGS, BoardMeasure
 from hera.nodes.calibration import calib_key, is_vec
 from hera.nodes.lsm6dsl.calibration import GyroCalibration
 from hera.nodes.lsm6dsl.driver import ODRS_HZ, Lsm6dslDriver
@@ -131,7 +131,7 @@ def stored_bias(value: Any) -> tuple[float, float, float] | None:
     return None
 
 
-class Lsm6dsl(Measure):
+class Lsm6dsl(BoardMeasure):
     """An LSM6DSL accelerometer + gyroscope (see the module docstring)."""
 
     name = "lsm6dsl"
@@ -165,6 +165,11 @@ class Lsm6dsl(Measure):
             )
         with board_needed():
             self.board = open_imu(ctx, args)
+        if self.board.odr_hz != odr:
+            raise ValueError(
+                f"measure {ctx.spec.name!r}: its board runs at {self.board.odr_hz:g} Hz, the "
+                f"measure's odr_hz is {odr:g}: give both the same rate"
+            )
         self.reads = BoardReads(ctx)
         self.key = calib_key(ctx)
         self.desk = CalibrationDesk.of(ctx.resources)

@@ -16,11 +16,11 @@ import math
 from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
-from hera.measure import Measure, MeasureContext, Reading
+from hera.measure import MeasureContext, Reading
 from hera.nodes import boards
 from hera.nodes import geometry as gm
 from hera.nodes.board_reads import BoardReads, board_needed
-from hera.nodes.boards import BOARD_ARGS
+from hera.nodes.boards import BOARD_ARGS, BoardMeasure
 from hera.nodes.calibration import (
     calibrate_mag,
     calibrate_nav,
@@ -56,7 +56,7 @@ def _yaw(q: gm.Quat) -> float:
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
-class _NavMeasure(Measure):
+class _NavMeasure(BoardMeasure):
     """Shared set-up: the board, the truth recorder."""
 
     truth_columns: ClassVar[tuple[str, ...]] = ()

@@ -16,10 +16,10 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from hera.measure import Measure, MeasureContext, Reading
+from hera.measure import MeasureContext, Reading
 from hera.nodes import boards
 from hera.nodes.board_reads import BoardReads, board_needed
-from hera.nodes.boards import BOARD_ARGS
+from hera.nodes.boards import BOARD_ARGS, BoardMeasure
 from hera.nodes.driver import SimulatedSonar
 from hera.nodes.sonar_model import INCH
 from hera.nodes.truth import TruthRecorder, want_truth
@@ -52,7 +52,7 @@ SONAR_ARGS = Table(
 )
 
 
-class Sonar(Measure):
+class Sonar(BoardMeasure):
     """A MaxSonar range finder: ``[range [m], x, y]``, range = inches x 0.0254."""
 
     name = "sonar"

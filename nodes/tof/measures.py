@@ -19,10 +19,10 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from hera.measure import Measure, MeasureContext, Reading
+from hera.measure import MeasureContext, Reading
 from hera.nodes import boards
 from hera.nodes.board_reads import BoardReads, board_needed
-from hera.nodes.boards import BOARD_ARGS
+from hera.nodes.boards import BOARD_ARGS, BoardMeasure
 from hera.nodes.driver import SimulatedBoard
 from hera.nodes.tof.driver import TofDriver
 from hera.nodes.tof.model import TOF_MODEL, TofModel
@@ -65,7 +65,7 @@ def open_tof(ctx: MeasureContext, args: Mapping[str, Any], mount: tuple[float, f
     return boards.open_board(ctx, args, "tof", TofDriver, "a VL53L1 driver", make, "vl53l1")
 
 
-class Vl53l1(Measure):
+class Vl53l1(BoardMeasure):
     """One VL53L1 time-of-flight sensor (see the module docstring)."""
 
     name = "vl53l1"

@@ -420,6 +420,21 @@ def test_reload_swaps_the_model_without_a_gap_and_rolls_back_bad_code(train):
         assert bad.stdout.count("measure gyro_v: the new code does not start (") == 2, bad.stdout
         assert bad.stdout.count("); rolled back") == 2, bad.stdout
         assert "no such sensor" in bad.stdout
+        # new code that waits for its sensor (NotReady): rolled back saying what it waits for
+        write_plugin(
+            train.plugins,
+            4,
+            init_body='from hera.measure import NotReady; raise NotReady("sensor unplugged")',
+        )
+        bad = train.hera("reload", "reload_model")
+        assert bad.returncode == 1, bad.stdout + bad.stderr
+        assert (
+            bad.stdout.count(
+                "measure gyro_v: the new code does not start (init took over 10 s, waiting "
+                "to start: sensor unplugged); rolled back"
+            )
+            == 2
+        ), bad.stdout
         n = {node: len(rec.of(node)) for node in ("computer", "nav_1")}
         for node in ("computer", "nav_1"):
             wait_for(lambda nd=node: len(rec.of(nd)) > n[nd] + 20, 10, f"estimates on {node}")

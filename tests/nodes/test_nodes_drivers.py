@@ -49,6 +49,20 @@ def test_a_driver_that_is_not_a_board_is_refused():
         Nav().init({"driver": "fake_drivers:Nope"}, make_ctx("nav", WORLD))
 
 
+def test_a_drivers_arguments_are_checked_against_its_constructor():
+    args = {"driver": "fake_drivers:FixedSonar", "driver_args": {"inchs": 50}}
+    with pytest.raises(ValueError) as e:
+        Sonar().init({**args, "position": [1.0, 2.0, 0.0]}, make_ctx("sonar", WORLD))
+    assert str(e.value) == (
+        "driver 'fake_drivers:FixedSonar': driver_args: unknown key 'inchs' (did you mean "
+        "'inches'?); fake_drivers:FixedSonar takes inches"
+    )
+    assert Sonar.check_args(args, "here") == [
+        "here: driver_args: unknown key 'inchs' (did you mean 'inches'?); "
+        "fake_drivers:FixedSonar takes inches"
+    ]
+
+
 def test_the_node_stopping_closes_every_board_that_can_close():
     from hera.nodes.boards import Boards
 

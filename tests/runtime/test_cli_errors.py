@@ -80,6 +80,32 @@ CASES = [
             "measure 'sonar' of node 'a': offset is for unsynchronised measures (sync = true)",
         ],
     ),
+    (
+        HEAD
+        + '[[nodes.measures]]\nuse = "lsm6dsl"\nperiod = 0.0384615\nargs = { driver = '
+        + '"hera.nodes.lsm6dsl.i2c:I2cLsm6dsl", driver_args = { buss = 1, axes = "y,x,z" } }\n'
+        + '[[nodes.measures]]\nuse = "lsm6dsl"\nname = "imu2"\nperiod = 0.0384615\nargs = '
+        + '{ board = "imu2", driver = "hera.nodes.lsm6dsl.i2c:I2cLsm6dsl", driver_args = '
+        + '{ address = 0x6c, axes = "y,x,z" } }\n'
+        + '[[nodes.measures]]\nuse = "sonar"\nsync = false\nargs = { driver = '
+        + '"hera.nodes.serial_sonar:SerialMaxSonar" }\n'
+        + '[[nodes.measures]]\nuse = "nav"\nargs = { driver = "mydrivers.NavBoard" }\n',
+        [
+            "measure 'lsm6dsl' of node 'a': args: driver_args: unknown key 'buss' (did you "
+            "mean 'bus'?); hera.nodes.lsm6dsl.i2c:I2cLsm6dsl takes bus, address, odr_hz, "
+            "acc_range_g, gyro_range_dps, axes, timeout_ms",
+            "measure 'lsm6dsl' of node 'a': args: driver_args: axes 'y,x,z' is a mirror image "
+            "of the chip's frame (no chip can be mounted so): turn the sign of one more axis",
+            "measure 'imu2' of node 'a': args: driver_args: address must be 0x6a or 0x6b (the "
+            "chip's two), got 108",
+            "measure 'imu2' of node 'a': args: driver_args: axes 'y,x,z' is a mirror image of "
+            "the chip's frame (no chip can be mounted so): turn the sign of one more axis",
+            "measure 'sonar' of node 'a': args: driver_args: port is required by "
+            "hera.nodes.serial_sonar:SerialMaxSonar",
+            "measure 'nav' of node 'a': args: driver must be 'package.module:Class', got "
+            "'mydrivers.NavBoard'",
+        ],
+    ),
     ("[cluster\n", ["invalid TOML: "]),
     (
         HEAD + '[world]\nscenario = "train"\nradius_m = 0.6\n[[nodes.measures]]\nuse = "nav"\n',
