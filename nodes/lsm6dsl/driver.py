@@ -39,5 +39,7 @@ class Lsm6dslDriver(Protocol):
     odr_hz: float
 
     def read_imu(self) -> ImuReading:
-        """The latest accelerometer and gyroscope sample."""
+        """The latest accelerometer and gyroscope sample (a driver that keeps its samples
+        may give the oldest one not read yet, and say with an ``int`` attribute ``pending``
+        how many more it holds: the ``lsm6dsl`` measure then reads them all each step)."""
         ...

@@ -19,19 +19,28 @@ Raspberry Pi, bus 1 is the header's SDA/SCL pins). The arguments:
 
 What the chip is told (data sheet registers): a software reset (``CTRL3_C`` SW_RESET), then
 block data update and address auto-increment (``CTRL3_C`` = BDU | IF_INC), the rate and full
-scale of the accelerometer (``CTRL1_XL``) and of the gyroscope (``CTRL2_G``). A read polls
-``STATUS_REG`` until both XLDA and GDA say a new sample is there, then reads the twelve
-output bytes ``OUTX_L_G`` .. ``OUTZ_H_XL`` in one block (a repeated-start read) and scales
-them (data sheet table 3: 0.061 mg/LSB at 2 g .. 70 mdps/LSB at 2000 dps). A sample is
-stamped when its data-ready flag is seen, so with the chip's clock and the host's a little
-apart a sample may be stamped up to ``timeout_ms`` after the chip made it.
+scale of the accelerometer (``CTRL1_XL``) and of the gyroscope (``CTRL2_G``). A sampler
+thread polls ``STATUS_REG`` and, once both XLDA and GDA say a new sample is there, reads the
+twelve output bytes ``OUTX_L_G`` .. ``OUTZ_H_XL`` in one block (a repeated-start read). It
+stamps each sample with when the chip made it, from the edges of the data-ready flags
+(:class:`hera.nodes.data_ready.DataReadyClock`: within a poll interval, 1 ms, of the chip's
+own instant, whatever the chip's clock and the host's do to each other), and polls little
+between samples (it learns the chip's period). It keeps every sample until it is read
+(up to :data:`QUEUE`; ``overwritten`` in the board listing counts what went), so a read
+held up by a busy node, or a chip a little faster than the reads, loses none: a read
+returns the oldest sample not read yet (``pending`` says how many more there are; the
+``lsm6dsl`` measure takes them all each step), scaled (data sheet, mechanical
+characteristics: 0.061 mg/LSB at 2 g .. 70 mdps/LSB at 2000 dps), waiting up to
+``timeout_ms`` for one. A sample lost during a push cost the tilt filters half a degree
+for many seconds: the gyroscope's rotation over its interval is gone.
 
 Errors, as the driver contract of :mod:`hera.nodes.driver` asks: no new sample within
 ``timeout_ms`` raises :class:`NoReading` (a dropout); a bus that cannot be opened or a chip
 that does not answer (``EREMOTEIO``: unplugged, no power) raises :class:`BoardDisconnected`,
-and the next read opens the bus and sets the chip up again, so a chip plugged back or
-powered again comes back by itself. A chip found reset while running (its rate register
-back to power-down: a brown-out) is set up again at the next dropout. A device at the
+and the sampler opens the bus and sets the chip up again every :data:`RETRY_S`, so a chip
+plugged back or powered again comes back by itself. A chip found reset while running (no
+sample for three periods, its rate register back to power-down: a brown-out) is set up
+again, and the next dropout says so. A device at the
 address that is not an LSM6DSL (``WHO_AM_I`` other than 0x6A) is a ValueError: the spec
 names the wrong chip, and waiting will not change it.
 """
@@ -41,12 +50,15 @@ from __future__ import annotations
 import contextlib
 import math
 import struct
+import threading
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Any
 
 from hera import wallclock
-from hera.nodes.driver import BoardDisconnected, DriverError, NoReading
+from hera.nodes.data_ready import DataReadyClock
+from hera.nodes.driver import BoardDisconnected, NoReading
 from hera.nodes.geometry import Vec3
 from hera.nodes.lsm6dsl.driver import ODRS_HZ, ImuReading
 
@@ -80,7 +92,15 @@ GYRO_RANGES = {
 RESET_WAIT_S = 0.05
 """How long a software reset may take before the chip is taken as not answering."""
 
-_POLL_S = 0.001  # between two looks at STATUS_REG while a read waits
+POLL_S = 0.001
+"""Longest interval between two polls of ``STATUS_REG`` near a sample's edge (a tenth of a
+period at the fastest rates)."""
+
+QUEUE = 32
+"""Samples kept for the reads (1.2 s at 26 Hz); the oldest goes when one more comes."""
+
+RETRY_S = 0.25
+"""Seconds between two tries to set the bus and chip up again after an error."""
 
 
 def odr_code(odr_hz: float) -> int:
@@ -170,10 +190,24 @@ class I2cLsm6dsl:
         self._ctrl = {CTRL1_XL: code | fs_xl << 2, CTRL2_G: code | fs_g}
         self._smbus = smbus or _open_smbus
         self._dev: Any = None
-        self.reads = self.setups = self.resets_seen = 0
+        self.reads = self.setups = self.resets_seen = self.overwritten = 0
         self._where = f"I2C bus {self.bus_name}, address 0x{self.address:02x}"
-        with contextlib.suppress(BoardDisconnected):  # not plugged in yet: reads try again
+        period = 1.0 / self.odr_hz
+        self.clock = DataReadyClock(period, min(POLL_S, period / 10))
+        self._cond = threading.Condition()
+        self._queue: deque[tuple[float, bytes]] = deque()  # (epoch s, the twelve bytes)
+        self._trouble: BoardDisconnected | None = None
+        self._fatal: ValueError | None = None
+        self._note = ""  # said by the next dropout (a reset seen)
+        self._stop = threading.Event()
+        try:
             self._setup()
+        except BoardDisconnected as e:  # not plugged in yet: the sampler tries again
+            self._trouble = e
+        self._thread = threading.Thread(
+            target=self._sample_loop, name=f"lsm6dsl {self._where}", daemon=True
+        )
+        self._thread.start()
 
     @classmethod
     def check_args(cls, args: Mapping[str, Any]) -> list[str]:
@@ -243,7 +277,7 @@ class I2cLsm6dsl:
             while dev.read_byte_data(a, CTRL3_C) & SW_RESET:
                 if time.monotonic() > deadline:
                     raise OSError(f"the chip did not finish its reset in {RESET_WAIT_S:g} s")
-                time.sleep(_POLL_S)
+                time.sleep(POLL_S)
             dev.write_byte_data(a, CTRL3_C, BDU | IF_INC)
             for reg, value in self._ctrl.items():
                 dev.write_byte_data(a, reg, value)
@@ -256,30 +290,91 @@ class I2cLsm6dsl:
         """Whether the control registers still hold what :meth:`_setup` wrote."""
         return all(dev.read_byte_data(self.address, r) == v for r, v in self._ctrl.items())
 
+    # -- the sampler thread -----------------------------------------------------------------
+    def _sample_loop(self) -> None:
+        """Poll the data-ready flags on the :class:`DataReadyClock`'s schedule, keep the
+        newest sample with its stamp, set the bus up again after an error (every
+        :data:`RETRY_S`) or a reset, until :meth:`close`."""
+        clock, mono = self.clock, time.monotonic
+        quiet = 3.0 * clock.nominal  # no sample this long: was the chip reset?
+        last = mono()
+        while not self._stop.is_set():
+            try:
+                dev = self._dev if self._dev is not None else self._setup()
+                if self._trouble is not None:
+                    with self._cond:
+                        self._trouble = None
+                    last = mono()
+                status = dev.read_byte_data(self.address, STATUS_REG)
+                now = mono()
+                if status & (XLDA | GDA) == XLDA | GDA:
+                    made = clock.ready(now)
+                    raw = bytes(dev.read_i2c_block_data(self.address, OUTX_L_G, 12))
+                    wall = wallclock.now() - (mono() - made)
+                    with self._cond:
+                        if len(self._queue) == QUEUE:
+                            self._queue.popleft()
+                            self.overwritten += 1
+                        self._queue.append((wall, raw))
+                        self._cond.notify_all()
+                    last = now
+                else:
+                    clock.not_ready(now)
+                    if now - last > quiet:
+                        last = now  # looked: look again after another quiet spell
+                        if not self._still_set_up(dev):  # a brown-out: back in power-down
+                            self.resets_seen += 1
+                            self._setup()
+                            with self._cond:
+                                self._note = "the chip had been reset; set up again"
+                wait = clock.next_poll(mono()) - mono()
+            except BoardDisconnected as e:
+                self._set_trouble(e)
+                wait = RETRY_S
+            except OSError as e:
+                self._set_trouble(self._fail(e))
+                wait = RETRY_S
+            except ValueError as e:  # another chip at the address: for good
+                with self._cond:
+                    self._fatal = e
+                    self._cond.notify_all()
+                return
+            if wait > 0:
+                self._stop.wait(wait)
+
+    def _set_trouble(self, e: BoardDisconnected) -> None:
+        with self._cond:
+            self._trouble = e
+            self._queue.clear()
+            self._cond.notify_all()
+
     # -- Lsm6dslDriver ----------------------------------------------------------------------
+    @property
+    def pending(self) -> int:
+        """Samples made and not read yet (the ``lsm6dsl`` measure reads them all each step)."""
+        with self._cond:
+            return len(self._queue)
+
     def read_imu(self) -> ImuReading:
-        """The next sample: waits up to ``timeout_ms`` for both data-ready flags, then reads
-        the twelve output bytes (see the module docstring for the errors)."""
-        dev = self._dev if self._dev is not None else self._setup()
-        a = self.address
+        """The oldest sample not read yet, stamped when the chip made it; waits up to
+        ``timeout_ms`` for one (see the module docstring for the errors)."""
         deadline = time.monotonic() + self.timeout
-        try:
-            while dev.read_byte_data(a, STATUS_REG) & (XLDA | GDA) != XLDA | GDA:
+        with self._cond:
+            while True:
+                if self._fatal is not None:
+                    raise self._fatal
+                if self._queue:
+                    t, raw = self._queue.popleft()
+                    break
+                if self._trouble is not None:
+                    raise self._trouble
                 left = deadline - time.monotonic()
                 if left <= 0:
-                    if not self._still_set_up(dev):  # a brown-out put it back to power-down
-                        self.resets_seen += 1
-                        self._setup()
-                        raise NoReading(f"{self._where}: the chip had been reset; set up again")
-                    raise NoReading(f"{self._where}: no new sample in {self.timeout * 1e3:g} ms")
-                time.sleep(min(_POLL_S, left))
-            t = wallclock.now()
-            raw = dev.read_i2c_block_data(a, OUTX_L_G, 12)
-        except DriverError:
-            raise
-        except OSError as e:
-            raise self._fail(e) from None
-        gx, gy, gz, ax, ay, az = struct.unpack("<6h", bytes(raw))
+                    note, self._note = self._note, ""
+                    why = note or f"no new sample in {self.timeout * 1e3:g} ms"
+                    raise NoReading(f"{self._where}: {why}")
+                self._cond.wait(left)
+        gx, gy, gz, ax, ay, az = struct.unpack("<6h", raw)
         self.reads += 1
         return ImuReading(
             t,
@@ -302,11 +397,16 @@ class I2cLsm6dsl:
             "reads": self.reads,
             "setups": self.setups,
             "resets_seen": self.resets_seen,
+            "overwritten": self.overwritten,
+            "period_ms": round(self.clock.period * 1e3, 4),
             "fault": None,
         }
 
     def close(self) -> None:
-        """Put the chip in power-down (best effort) and close the bus."""
+        """Stop the sampler, put the chip in power-down (best effort) and close the bus."""
+        self._stop.set()
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join()
         dev = self._dev
         if dev is not None:
             with contextlib.suppress(OSError):

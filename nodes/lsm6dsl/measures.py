@@ -32,7 +32,7 @@ from hera.nodes.board_reads import BoardReads, board_needed
 from hera.nodes.boards import BOARD_ARGS, BoardMeasure
 from hera.nodes.calibration import calib_key, is_vec
 from hera.nodes.lsm6dsl.calibration import GyroCalibration
-from hera.nodes.lsm6dsl.driver import ODRS_HZ, Lsm6dslDriver
+from hera.nodes.lsm6dsl.driver import ODRS_HZ, ImuReading, Lsm6dslDriver
 from hera.nodes.lsm6dsl.model import IMU_MODEL, ImuModel
 from hera.nodes.lsm6dsl.sim import SimLsm6dsl
 from hera.nodes.world import G, epoch_of, make_scenario
@@ -202,12 +202,24 @@ class Lsm6dsl(BoardMeasure):
             st.update(progress=s.state, collected=s.collected, needed=s.needed, restarts=s.restarts)
         self.desk.report(self.ctx.spec.name or self.name, st)
 
-    def measure(self) -> Reading | None:
+    def measure(self) -> Reading | list[Reading] | None:
         if self.desk.take(self.ctx.spec.name or self.name):
             self._start_calibration()
         r = self.reads.read(self.board.read_imu)
         if r is None:
             return None
+        out = [self._reading(r)]
+        # A driver that keeps its samples (``pending``) may hold more than one: all of them,
+        # in order, so no gyroscope interval is lost to a late step.
+        while getattr(self.board, "pending", 0) > 0:
+            r = self.reads.read(self.board.read_imu)
+            if r is None:
+                break
+            out.append(self._reading(r))
+        return out[0] if len(out) == 1 else out
+
+    def _reading(self, r: ImuReading) -> Reading:
+        """One sample in the seed's convention, fed to a calibration under way."""
         if self.calib is not None:
             restarts = self.calib.restarts
             done = self.calib.feed(r.acc, r.gyro)

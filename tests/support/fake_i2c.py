@@ -14,13 +14,16 @@ registers with the signal quantised at the full scale set. :class:`FakeBus` answ
 from __future__ import annotations
 
 import errno
+import json
 import math
 import struct
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 
-from hera.nodes.lsm6dsl.driver import ODRS_HZ
+from hera import wallclock
+from hera.nodes.lsm6dsl.driver import ODRS_HZ, ImuReading
 from hera.nodes.lsm6dsl.i2c import (
     ACC_RANGES,
     CTRL1_XL,
@@ -37,6 +40,9 @@ from hera.nodes.lsm6dsl.i2c import (
     I2cLsm6dsl,
     parse_axes,
 )
+from hera.nodes.lsm6dsl.model import ImuModel
+from hera.nodes.lsm6dsl.sim import SimLsm6dsl
+from hera.nodes.world import epoch_of, make_scenario
 
 Vec = tuple[float, float, float]
 
@@ -53,7 +59,7 @@ def leaning(theta_deg: float, bias_dps: Vec = (0.0, 0.0, 0.0)) -> Signal:
 
 class Lsm6dslChip:
     """The chip (see the module docstring); ``signal(t)`` gives (acc g, gyro deg/s) in the
-    chip's axes at monotonic time ``t``."""
+    chip's axes for the sample made at monotonic time ``t``."""
 
     def __init__(
         self,
@@ -93,7 +99,7 @@ class Lsm6dslChip:
             return
         self.samples += made - self._made
         self._made = made
-        acc, gyro = self.signal(now)
+        acc, gyro = self.signal(self._since + made * period)  # at the sample's own instant
         fs_xl = next(g for g, (c, _) in ACC_RANGES.items() if c == (self.regs[CTRL1_XL] >> 2) & 3)
         fs_g = next(d for d, (c, _) in GYRO_RANGES.items() if c == self.regs[CTRL2_G] & 0x0F)
         counts = [_count(v, ACC_RANGES[fs_xl][1]) for v in acc]
@@ -197,3 +203,53 @@ class ChipOnFakeBus(I2cLsm6dsl):
         chip = Lsm6dslChip(signal, clock_error)
         self.fake_bus = FakeBus({driver_args.get("address", 0x6A): chip})
         super().__init__(**driver_args, smbus=self.fake_bus.open)
+
+
+class SimChipOnFakeBus(I2cLsm6dsl):
+    """The real driver on a fake bus whose chip plays the simulated LSM6DSL of a run's world
+    (``world_file``: the run's ``cluster.json``, read at the first sample, for the world and
+    its epoch): each sample is the simulator's reading at the instant the chip's clock (off
+    by ``clock_error``) makes it, taken and stamped by the driver as a real chip's would be.
+    ``seed`` and ``model`` are the simulator's; other arguments are the driver's."""
+
+    def __init__(
+        self,
+        world_file: str,
+        clock_error: float = 0.0,
+        seed: int = 0,
+        model: dict | None = None,
+        **driver_args,
+    ) -> None:
+        self.world_file, self.sim_seed, self.model = world_file, seed, model
+        self.sim: SimLsm6dsl | None = None
+        self._at = 0.0
+        chip = Lsm6dslChip(self._sample, clock_error)
+        self.fake_bus = FakeBus({driver_args.get("address", 0x6A): chip})
+        super().__init__(**driver_args, smbus=self.fake_bus.open)
+
+    def _sample(self, t_mono: float) -> tuple[Vec, Vec]:
+        if self.sim is None:
+            world = json.loads(Path(self.world_file).read_text())["resolved_spec"]["world"]
+            self.sim = SimLsm6dsl(
+                "sim/imu",
+                make_scenario(world),
+                epoch_of(world),
+                ImuModel.from_args(self.model),
+                self.sim_seed,
+                odr_hz=self.odr_hz,
+                clock=lambda: self._at,
+            )
+        self._at = time.time() - (time.monotonic() - t_mono)  # the sample's epoch time
+        r = self.sim.read_imu()
+        return r.acc, r.gyro
+
+
+class StampedWhenRead(SimChipOnFakeBus):
+    """The same chip read the naive way, for comparison: each read takes the newest sample
+    (the others are lost) and stamps it when it is read."""
+
+    def read_imu(self) -> ImuReading:
+        r = super().read_imu()
+        while self.pending:
+            r = super().read_imu()
+        return ImuReading(wallclock.now(), r.acc, r.gyro)
