@@ -23,9 +23,9 @@ scale of the accelerometer (``CTRL1_XL``) and of the gyroscope (``CTRL2_G``). A 
 thread polls ``STATUS_REG`` and, once both XLDA and GDA say a new sample is there, reads the
 twelve output bytes ``OUTX_L_G`` .. ``OUTZ_H_XL`` in one block (a repeated-start read). It
 stamps each sample with when the chip made it, from the edges of the data-ready flags
-(:class:`hera.nodes.data_ready.DataReadyClock`: within a poll interval, 1 ms, of the chip's
-own instant, whatever the chip's clock and the host's do to each other), and polls little
-between samples (it learns the chip's period). It keeps every sample until it is read
+(:class:`hera.nodes.data_ready.DataReadyClock` tracks the chip's clock from them: about
+0.1 ms from the chip's own instant, whatever the chip's clock and the host's do to each
+other), and polls little between samples. It keeps every sample until it is read
 (up to :data:`QUEUE`; ``overwritten`` in the board listing counts what went), so a read
 held up by a busy node, or a chip a little faster than the reads, loses none: a read
 returns the oldest sample not read yet (``pending`` says how many more there are; the
@@ -305,6 +305,7 @@ class I2cLsm6dsl:
                     with self._cond:
                         self._trouble = None
                     last = mono()
+                began = mono()
                 status = dev.read_byte_data(self.address, STATUS_REG)
                 now = mono()
                 if status & (XLDA | GDA) == XLDA | GDA:
@@ -319,7 +320,7 @@ class I2cLsm6dsl:
                         self._cond.notify_all()
                     last = now
                 else:
-                    clock.not_ready(now)
+                    clock.not_ready(began)
                     if now - last > quiet:
                         last = now  # looked: look again after another quiet spell
                         if not self._still_set_up(dev):  # a brown-out: back in power-down
