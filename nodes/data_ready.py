@@ -137,8 +137,9 @@ class DataReadyClock:
                         [p00 - g0 * g0 * s, p01 - g0 * g1 * s],
                         [p01 - g0 * g1 * s, p11 - g1 * g1 * s],
                     ]
-                    self.track = min(max(self.track, low), high)  # made between the polls
-                    return self.track
+                    # made between the polls: the stamp kept there, the tracked clock not
+                    # (moved, it would hide from the period the drift that moved it)
+                    return min(max(self.track, low), high)
             self.relocks += 1  # lost: the period learnt stays, the phase starts again
         self.edges += 1
         self.track = mid

@@ -400,6 +400,7 @@ class I2cLsm6dsl:
             "resets_seen": self.resets_seen,
             "overwritten": self.overwritten,
             "period_ms": round(self.clock.period * 1e3, 4),
+            "relocks": self.clock.relocks,
             "fault": None,
         }
 

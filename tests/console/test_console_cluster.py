@@ -209,11 +209,19 @@ def test_the_page_shows_nodes_plots_truth_and_the_track(train, browser):
         )
         assert {"truth", "track_gyro (e7) computer", "track_mag (e9) nav_1"} <= set(labels), labels
         assert int(drawn) == len(labels) >= 11, labels  # 5 trackers x 2 + truth
-        # a stream chosen by hand, a 100 Hz one: its points arrive downsampled to ~10 per second
+        # a stream chosen by hand, a 100 Hz one: its points arrive downsampled to ~10 per second;
+        # its rate shown is the node's own (by its seq), whatever a loaded machine lets the
+        # node keep of its 100 Hz (89.6 Hz once in CI)
+        seq = lambda: train.cluster.status("nav_1")["measures"]["nav"]["seq"]  # noqa: E731
+        s0, t0 = seq(), time.monotonic()
         page.goto(train.url + "?streams=nav/nav_1")
         page.wait_for_function("(window.hera.points['nav/nav_1'] || 0) > 50", timeout=10000)
         info = page.evaluate("window.hera.streams.find(s => s.stream === 'nav/nav_1')")
-        assert 80 <= info["rate_hz"] <= 120, info
+        published = (seq() - s0) / (time.monotonic() - t0)
+        assert info["rate_hz"] == pytest.approx(published, rel=0.2) and published > 50, (
+            info,
+            published,
+        )
         n = page.evaluate("window.hera.lastPoll.data['nav/nav_1'].points.length")
         assert n < 10  # a poll carries the last few buckets, not the 25 raw samples of 250 ms
         page.goto(train.url)

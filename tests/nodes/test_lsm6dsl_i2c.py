@@ -13,7 +13,7 @@ from itertools import pairwise
 
 import pytest
 from fake_i2c import ChipOnFakeBus, FakeBus, Lsm6dslChip, leaning
-from harness import wait_for
+from harness import csv_rows, wait_for
 from nodes_helpers import boards_of, make_ctx
 
 from hera.nodes.driver import BoardDisconnected, NoReading
@@ -141,6 +141,8 @@ def test_a_sample_is_stamped_when_the_chip_made_it_whatever_its_clock(on_bus, cl
         errors.append(r.t - offset - made)
     assert len(errors) >= 40, errors
     assert statistics.median(abs(e) for e in errors) < 0.2e-3, sorted(errors)
+    listed = driver.describe()  # the board listing shows the chip's own period, learnt
+    assert listed["period_ms"] == pytest.approx(1000 / (104 * (1 + clock_error)), rel=1e-3)
 
 
 def test_no_new_sample_in_time_is_a_dropout(on_bus):
@@ -348,9 +350,7 @@ def test_a_node_publishes_its_chip_and_waits_for_an_adapter_not_there(cluster):
     log = c.run_dir / "measures" / "imu_robot.csv"  # seq, time, a_X, a_Z, g_Y, b, calibration
 
     def rows() -> list[list[float]]:
-        text = log.read_text() if log.exists() else ""
-        lines = text[: text.rfind("\n") + 1].splitlines()  # whole rows only
-        return [[float(v) for v in line.split(",")[1:]] for line in lines]
+        return [[float(v) for v in row[1:]] for row in csv_rows(log)]
 
     def calibrated() -> list[float] | None:
         last = rows()[-1:]

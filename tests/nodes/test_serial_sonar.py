@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
-from harness import wait_for
+from harness import csv_rows, wait_for
 
 from hera.nodes.driver import BoardDisconnected, NoReading, SonarDriver
 from hera.nodes.serial_sonar import SerialMaxSonar
@@ -187,9 +187,8 @@ def test_a_node_publishes_what_its_serial_port_says(cluster, sensor, tmp_path: P
     log = c.run_dir / "measures" / "sonar_s1.csv"  # seq, time, range, x, y per sample
 
     def latest() -> list[float] | None:
-        text = log.read_text() if log.exists() else ""
-        rows = text[: text.rfind("\n") + 1].splitlines()  # whole rows only
-        return [float(v) for v in rows[-1].split(",")[2:]] if rows else None
+        rows = csv_rows(log)
+        return [float(v) for v in rows[-1][2:]] if rows else None
 
     values = wait_for(latest, 20, "a sonar sample from the serial port")
     assert values == pytest.approx([57 * INCH, 0.5, 1.5])

@@ -29,6 +29,13 @@ def wait_for(cond: Callable[[], object], timeout: float, what: str, step: float 
         time.sleep(step)
 
 
+def csv_rows(path: Path) -> list[list[str]]:
+    """The complete rows of a CSV log a node is still writing (the values of each, split at
+    commas; a last line not ended yet is left out; none while the file is not there)."""
+    text = path.read_text() if path.exists() else ""
+    return [line.split(",") for line in text[: text.rfind("\n") + 1].splitlines()]
+
+
 def cluster_env(tmp_path: Path) -> dict[str, str]:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(SUPPORT), env.get("PYTHONPATH")]))
