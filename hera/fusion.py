@@ -57,7 +57,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 from hera import checkpoints
-from hera.handover import rebind, superseded
+from hera.handover import rebind, reloads, superseded
 from hera.measure import Measure, MeasureContext, Reading
 from hera.recordings import LiveStart, read_start, recorded_time, start_marker, write_start
 from hera.schema import TABLE, Setting, Table, choice, did_you_mean, number
@@ -274,6 +274,9 @@ class FusionMeasure(Measure):
 
     model_class: ClassVar[type]
     model_fixed: ClassVar[Mapping[str, Any]] = {}
+    # what close() reads, there before init: the worker closes a measure whose init failed
+    _marker_file: Path | None = None
+    _inbox: Inbox | None = None
     period = 0.05
     arguments = FUSION_ARGS
 
@@ -413,6 +416,7 @@ class FusionMeasure(Measure):
         if now - self._checkpointed < CHECKPOINT_S:
             return
         self._checkpointed = now
+        reloads_before = reloads()
         try:
             model = copy.deepcopy(self.model)
         except Exception as e:  # a model holding what cannot be copied: no checkpoints
@@ -434,7 +438,9 @@ class FusionMeasure(Measure):
         try:
             checkpoints.save(self.ctx.state_dir, self.ctx.spec.name, entry)
         except Exception as e:  # cannot be pickled, or the disk refused: in memory only
-            if superseded(model):  # a hot reload loaded its class anew: the old code ends soon
+            # a hot reload loaded its class anew (the old code ends soon), or had its module
+            # out of sys.modules meanwhile (pickle imported it itself): skipped, not given up
+            if superseded(model, reloads_before):
                 return
             self._disk = False
             self.ctx.log.warning(

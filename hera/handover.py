@@ -16,6 +16,7 @@ import enum
 import sys
 import types
 from collections import deque
+from collections.abc import Iterator
 from typing import Any
 
 
@@ -80,10 +81,37 @@ _FOREIGN = frozenset({"numpy", "numba", "llvmlite"})
 dispatcher holds the compiler's state, and dicts that refuse a key set twice)."""
 
 
-def superseded(obj: object) -> bool:
+_reloads = 0
+"""Odd while :func:`reloading` has modules out of ``sys.modules`` (a seqlock's count: it
+changes at the start and at the end of every reload)."""
+
+
+@contextlib.contextmanager
+def reloading() -> Iterator[None]:
+    """Mark the time ``hera reload`` has modules out of ``sys.modules`` (loading their new
+    code, or putting the old back): pickle, looking a class up by its module's name then,
+    imports the module's source itself and fails if the new code does not load."""
+    global _reloads
+    _reloads += 1
+    try:
+        yield
+    finally:
+        _reloads += 1
+
+
+def reloads() -> int:
+    """The reload count to give :func:`superseded` (read before the work it may spoil)."""
+    return _reloads
+
+
+def superseded(obj: object, since: int | None = None) -> bool:
     """True if ``obj``'s class is no longer what its module's name gives (``hera reload``
-    loaded the module anew): pickle refuses such an object, and the measure holding it is
-    about to be replaced by the new code's, so its checkpoint is skipped, not given up."""
+    loaded the module anew), or, given ``since`` (:func:`reloads` read before a pickle
+    failed), if a reload was under way at any time since: pickle refuses such an object, and
+    the measure holding it is about to be replaced by the new code's (or the reload of code
+    that did not load has put the old back), so its checkpoint is skipped, not given up."""
+    if since is not None and (since % 2 or _reloads != since):
+        return True
     cls = type(obj)
     return sys.modules.get(cls.__module__) is not None and _named(cls) is not cls
 

@@ -38,6 +38,7 @@ import time
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
+from hera import handover
 from hera.plugins import find_measure
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -171,16 +172,18 @@ def reload_modules(order: list[str]) -> dict[str, ModuleType]:
     ones are put back first)."""
     saved = {name: sys.modules[name] for name in order}
     importlib.invalidate_caches()
-    for name in order:
-        sys.modules.pop(name, None)
-    try:
+    with handover.reloading():  # a checkpoint pickled meanwhile may fail: skipped
         for name in order:
-            importlib.import_module(name)
-    except BaseException as e:
-        restore(saved)
-        raise ReloadError(
-            f"the new code of {name} does not load ({type(e).__name__}: {e}); nothing was changed"
-        ) from None
+            sys.modules.pop(name, None)
+        try:
+            for name in order:
+                importlib.import_module(name)
+        except BaseException as e:
+            restore(saved)
+            raise ReloadError(
+                f"the new code of {name} does not load ({type(e).__name__}: {e}); "
+                "nothing was changed"
+            ) from None
     return saved
 
 

@@ -12,7 +12,7 @@ import types
 import pytest
 
 from hera.fusion import adopt_model
-from hera.handover import superseded
+from hera.handover import reloading, reloads, superseded
 
 NAME = "superseded_probe"
 
@@ -88,6 +88,23 @@ def test_an_object_of_a_reloaded_class_is_superseded_and_pickle_refuses_it(modul
     with pytest.raises(pickle.PicklingError, match="not the same object"):
         pickle.dumps(model)
     assert not superseded(sys.modules[module].Model())
+
+
+def test_a_pickle_failing_while_a_reload_has_the_module_out_is_skipped_not_given_up(module):
+    """CI once saw it: ``hera reload`` of code that does not load had the model's module
+    out of ``sys.modules`` while the old model's checkpoint was pickled; pickle imported the
+    module's (new, broken) source itself and failed, and the checkpoints were given up."""
+    model = _define(module)()
+    before = reloads()
+    with reloading():
+        held = sys.modules.pop(module)
+        with pytest.raises(pickle.PicklingError, match="import of module"):
+            pickle.dumps(model)
+        assert superseded(model, before)  # failed during the reload
+        sys.modules[module] = held  # the reload put the old module back
+    assert superseded(model, before)  # failed before the reload ended, checked after
+    assert not superseded(model, reloads()) and not superseded(model)  # no reload since
+    pickle.dumps(model)
 
 
 def test_a_lambda_in_a_model_is_not_mistaken_for_a_reload(module):
