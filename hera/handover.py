@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import enum
 import sys
+import threading
 import types
 from collections import deque
 from collections.abc import Iterator
@@ -81,9 +82,11 @@ _FOREIGN = frozenset({"numpy", "numba", "llvmlite"})
 dispatcher holds the compiler's state, and dicts that refuse a key set twice)."""
 
 
+_reloads_lock = threading.Lock()
 _reloads = 0
-"""Odd while :func:`reloading` has modules out of ``sys.modules`` (a seqlock's count: it
-changes at the start and at the end of every reload)."""
+"""Changes at the start and at the end of every reload (:func:`reloads`)."""
+_reloading = 0
+"""Reloads under way (each has modules out of ``sys.modules``)."""
 
 
 @contextlib.contextmanager
@@ -91,12 +94,16 @@ def reloading() -> Iterator[None]:
     """Mark the time ``hera reload`` has modules out of ``sys.modules`` (loading their new
     code, or putting the old back): pickle, looking a class up by its module's name then,
     imports the module's source itself and fails if the new code does not load."""
-    global _reloads
-    _reloads += 1
+    global _reloads, _reloading
+    with _reloads_lock:
+        _reloads += 1
+        _reloading += 1
     try:
         yield
     finally:
-        _reloads += 1
+        with _reloads_lock:
+            _reloads += 1
+            _reloading -= 1
 
 
 def reloads() -> int:
@@ -110,7 +117,7 @@ def superseded(obj: object, since: int | None = None) -> bool:
     failed), if a reload was under way at any time since: pickle refuses such an object, and
     the measure holding it is about to be replaced by the new code's (or the reload of code
     that did not load has put the old back), so its checkpoint is skipped, not given up."""
-    if since is not None and (since % 2 or _reloads != since):
+    if since is not None and (_reloading or _reloads != since):
         return True
     cls = type(obj)
     return sys.modules.get(cls.__module__) is not None and _named(cls) is not cls
