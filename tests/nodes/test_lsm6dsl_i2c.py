@@ -111,11 +111,17 @@ def test_each_read_is_a_new_sample_waited_for(on_bus):
 
 
 def test_a_reader_held_up_loses_no_sample(on_bus):
-    driver, _, _ = on_bus(Lsm6dslChip(Numbered()))
+    driver, _, chip = on_bus(Lsm6dslChip(Numbered()))
     first = round(driver.read_imu().gyro[0])
+    made, lost = chip.samples, chip.lost
     time.sleep(6 / 104)  # a step held up for six periods: the sampler kept what came
-    assert driver.pending >= 4
-    got = [round(driver.read_imu().gyro[0]) for _ in range(driver.pending)]
+    pending = driver.pending
+    # every sample the chip showed is kept (one more may have come since the sampler last
+    # looked); the sampler itself held up past a period loses one at the chip, as on a
+    # real chip without its FIFO (seen once, under two CI runs at once)
+    shown = chip.samples - made - (chip.lost - lost)
+    assert shown >= 3 and pending >= shown - 1, (pending, shown)
+    got = [round(driver.read_imu().gyro[0]) for _ in range(pending)]
     assert got == list(range(first + 1, first + 1 + len(got)))  # every one, in order
     assert driver.overwritten == 0
 

@@ -70,7 +70,7 @@ class Lsm6dslChip:
         self.signal = signal or leaning(0.0)
         self.clock_error, self.who_am_i = clock_error, who_am_i
         self.lock = threading.Lock()
-        self.samples = 0
+        self.samples = self.lost = 0  # made; lost before a read took them
         self.power_on()
 
     def power_on(self) -> None:
@@ -97,6 +97,9 @@ class Lsm6dslChip:
         made = math.floor((now - self._since) / period)
         if made <= self._made:
             return
+        # the output registers keep the newest: the samples made before it since the last
+        # access never showed, and one made before and still unread is overwritten
+        self.lost += made - self._made - 1 + (1 if self.regs[STATUS_REG] & XLDA else 0)
         self.samples += made - self._made
         self._made = made
         acc, gyro = self.signal(self._since + made * period)  # at the sample's own instant
