@@ -147,21 +147,24 @@ class DataReadyClock:
         self._cov = [[r, 0.0], [0.0, p11]]
         return mid
 
-    def _spread(self, k: int) -> float:
-        """One sigma (s) of the tracked clock's prediction ``k`` periods on."""
+    def _predicted_cov(self, k: int) -> list[list[float]]:
+        """The covariance of the tracked clock ``k`` periods on: F P F^T + k Q with
+        F = [[1, k], [0, 1]]."""
         (p00, p01), (_, p11) = self._cov
-        return math.sqrt(p00 + 2 * k * p01 + k * k * p11 + k * PHASE_NOISE_S**2)
-
-    def _predict(self, k: int) -> None:
-        """The tracked clock ``k`` periods on: phase += k period (F = [[1, k], [0, 1]]),
-        covariance F P F^T + k Q."""
-        (p00, p01), (_, p11) = self._cov
-        self.track += k * self.period
         q0, q1 = k * PHASE_NOISE_S**2, k * (PERIOD_NOISE * self.nominal) ** 2
-        self._cov = [
+        return [
             [p00 + 2 * k * p01 + k * k * p11 + q0, p01 + k * p11],
             [p01 + k * p11, p11 + q1],
         ]
+
+    def _spread(self, k: int) -> float:
+        """One sigma (s) of the tracked clock's prediction ``k`` periods on."""
+        return math.sqrt(self._predicted_cov(k)[0][0])
+
+    def _predict(self, k: int) -> None:
+        """The tracked clock ``k`` periods on: phase += k period."""
+        self._cov = self._predicted_cov(k)
+        self.track += k * self.period
 
     def _found(self, now: float, after: float) -> float:
         """The stamp of a sample found already there at ``now``, made after ``after`` (the

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import random
 import statistics
+from collections.abc import Callable
 from itertools import pairwise
 
 import pytest
@@ -38,21 +39,21 @@ def follow(
     clock: DataReadyClock,
     until: float,
     late: dict[int, float] | None = None,
-    jitter: random.Random | None = None,
+    wake: Callable[[], float] | None = None,
+    read: Callable[[], float] | None = None,
     start: float = 0.0,
 ):
     """Poll ``chip`` when ``clock`` says until ``until``; ``late``: polls pushed back by that
-    many s after the sample of that index (a descheduled thread); ``jitter``: a third of
-    the polls woken up to 5 ms late, and a tenth of the reads ending up to 1 ms after the
-    chip was read (the thread descheduled within the read). Returns (error of each stamp,
-    polls)."""
+    many s after the sample of that index (a descheduled thread); ``wake()``: how late (s)
+    each poll's thread wakes; ``read()``: how long after the chip was read the read is seen
+    to end. Returns (error of each stamp, polls)."""
     t, errors, polls = start, [], 0
     late = late or {}
     while t < until:
         polls += 1
-        if jitter is not None and jitter.random() < 1 / 3:
-            t += jitter.uniform(0.0, 0.005)
-        end = t + (jitter.uniform(0.0, 0.001) if jitter and jitter.random() < 0.1 else 0.0)
+        if wake is not None:
+            t += wake()
+        end = t + (read() if read is not None else 0.0)
         if chip.ready(t):
             k = chip.newest(t)
             chip.taken = k
@@ -64,6 +65,16 @@ def follow(
         if nxt in late and t >= chip.made(nxt):
             t = chip.made(nxt) + late.pop(nxt)
     return errors, polls
+
+
+def woken_at_random(rng: random.Random) -> tuple[Callable[[], float], Callable[[], float]]:
+    """(wake, read) for :func:`follow`: a third of the polls woken up to 5 ms late, and a
+    tenth of the reads ending up to 1 ms after the chip was read (the thread descheduled
+    within the read)."""
+    return (
+        lambda: rng.uniform(0.0, 0.005) if rng.random() < 1 / 3 else 0.0,
+        lambda: rng.uniform(0.0, 0.001) if rng.random() < 0.1 else 0.0,
+    )
 
 
 @pytest.mark.parametrize("error", [-0.03, -0.015, 0.0, 0.015, 0.03])
@@ -94,7 +105,8 @@ def test_a_thread_woken_late_still_stamps_on_the_chips_clock(seed):
     nominal, poll = 1 / 104, 0.001
     chip = Chip(nominal / 1.03)
     clock = DataReadyClock(nominal, poll)
-    errors, _ = follow(chip, clock, 20.0, jitter=random.Random(seed))
+    wake, read = woken_at_random(random.Random(seed))
+    errors, _ = follow(chip, clock, 20.0, wake=wake, read=read)
     settled = [abs(e) for k, e in errors if k > 200]
     assert statistics.median(settled) < poll / 10
     assert sum(e < poll / 2 for e in settled) >= 0.99 * len(settled)
@@ -120,18 +132,9 @@ def test_polls_always_late_do_not_bias_the_period(seed, error):
     rng = random.Random(seed)
     chip = Chip((1 / 104) / (1 + error))
     clock = DataReadyClock(1 / 104, 0.001)
-    t, errors = 0.0, []
-    while t < 3.0:
-        t += woken_late(rng)
-        end = t + 3e-5  # the read's own time
-        if chip.ready(t):
-            chip.taken = chip.newest(t)
-            errors.append(clock.ready(end) - chip.made(chip.taken))
-        else:
-            clock.not_ready(t)
-        t = clock.next_poll(end)
+    errors, _ = follow(chip, clock, 3.0, wake=lambda: woken_late(rng), read=lambda: 3e-5)
     assert clock.period == pytest.approx(chip.period, rel=2e-4)
-    assert statistics.median(abs(e) for e in errors[100:]) < 0.0003
+    assert statistics.median(abs(e) for _, e in errors[100:]) < 0.0003
 
 
 def test_a_reset_chip_is_tracked_again_with_its_period_kept():

@@ -177,7 +177,17 @@ class FakeBus:
         self.closed += 1
 
 
-class ChipOnFakeBus(I2cLsm6dsl):
+class _OnFakeBus(I2cLsm6dsl):
+    """The real driver on a fake bus holding one chip of ``signal`` and ``clock_error``, at
+    the driver's address (other arguments are the driver's)."""
+
+    def __init__(self, signal: Signal, clock_error: float, driver_args: dict) -> None:
+        chip = Lsm6dslChip(signal, clock_error)
+        self.fake_bus = FakeBus({driver_args.get("address", 0x6A): chip})
+        super().__init__(**driver_args, smbus=self.fake_bus.open)
+
+
+class ChipOnFakeBus(_OnFakeBus):
     """The real driver on a fake bus, for a node's spec (``driver = "fake_i2c:ChipOnFakeBus"``):
     a still robot leaning ``theta_deg`` with gyroscope bias ``bias_dps`` (the board's axes),
     the chip mounted as the driver's ``axes`` say (so it reads the board's values turned
@@ -203,12 +213,10 @@ class ChipOnFakeBus(I2cLsm6dsl):
             acc, gyro = board(t)
             return chip_axes(acc), chip_axes(gyro)
 
-        chip = Lsm6dslChip(signal, clock_error)
-        self.fake_bus = FakeBus({driver_args.get("address", 0x6A): chip})
-        super().__init__(**driver_args, smbus=self.fake_bus.open)
+        super().__init__(signal, clock_error, driver_args)
 
 
-class SimChipOnFakeBus(I2cLsm6dsl):
+class SimChipOnFakeBus(_OnFakeBus):
     """The real driver on a fake bus whose chip plays the simulated LSM6DSL of a run's world
     (``world_file``: the run's ``cluster.json``, read at the first sample, for the world and
     its epoch): each sample is the simulator's reading at the instant the chip's clock (off
@@ -226,9 +234,7 @@ class SimChipOnFakeBus(I2cLsm6dsl):
         self.world_file, self.sim_seed, self.model = world_file, seed, model
         self.sim: SimLsm6dsl | None = None
         self._at = 0.0
-        chip = Lsm6dslChip(self._sample, clock_error)
-        self.fake_bus = FakeBus({driver_args.get("address", 0x6A): chip})
-        super().__init__(**driver_args, smbus=self.fake_bus.open)
+        super().__init__(self._sample, clock_error, driver_args)
 
     def _sample(self, t_mono: float) -> tuple[Vec, Vec]:
         if self.sim is None:
