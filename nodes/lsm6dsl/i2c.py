@@ -48,7 +48,6 @@ names the wrong chip, and waiting will not change it.
 from __future__ import annotations
 
 import contextlib
-import math
 import struct
 import threading
 import time
@@ -59,8 +58,8 @@ from typing import Any
 from hera import wallclock
 from hera.nodes.data_ready import DataReadyClock
 from hera.nodes.driver import BoardDisconnected, NoReading
-from hera.nodes.geometry import Vec3
 from hera.nodes.lsm6dsl.driver import ODRS_HZ, ImuReading
+from hera.nodes.mounting import from_chip, parse_axes
 
 WHO_AM_I, CTRL1_XL, CTRL2_G, CTRL3_C, STATUS_REG, OUTX_L_G = 0x0F, 0x10, 0x11, 0x12, 0x1E, 0x22
 """Register addresses (data sheet section 9)."""
@@ -106,34 +105,6 @@ RETRY_S = 0.25
 def odr_code(odr_hz: float) -> int:
     """The ``ODR_XL``/``ODR_G`` code (bits 7:4) of an output data rate (Hz)."""
     return ODRS_HZ.index(odr_hz) + 1
-
-
-def parse_axes(axes: str) -> tuple[tuple[int, float], ...]:
-    """For each board axis x, y, z: (the chip axis 0..2, its sign), from ``"-y,x,z"``;
-    ValueError naming what is wrong."""
-    parts = [p.strip() for p in str(axes).split(",")]
-    out: list[tuple[int, float]] = []
-    for p in parts:
-        sign = -1.0 if p.startswith("-") else 1.0
-        name = p.lstrip("+-")
-        if name not in ("x", "y", "z") or len(p) - len(name) > 1:
-            out = []
-            break
-        out.append(("xyz".index(name), sign))
-    if len(parts) != 3 or len(out) != 3 or len({a for a, _ in out}) != 3:
-        raise ValueError(
-            f"axes must name each chip axis once with an optional sign, as '-y,x,z', got {axes!r}"
-        )
-    # The determinant of a signed permutation: its signs times the permutation's parity.
-    perm = [a for a, _ in out]
-    inversions = sum(perm[i] > perm[j] for i in range(3) for j in range(i + 1, 3))
-    det = math.prod(s for _, s in out) * (-1.0) ** inversions
-    if det < 0:
-        raise ValueError(
-            f"axes {axes!r} is a mirror image of the chip's frame (no chip can be mounted so): "
-            f"turn the sign of one more axis"
-        )
-    return tuple(out)
 
 
 def _open_smbus(bus: int | str) -> Any:
@@ -379,13 +350,9 @@ class I2cLsm6dsl:
         self.reads += 1
         return ImuReading(
             t,
-            self._board((ax, ay, az), self._acc_lsb),
-            self._board((gx, gy, gz), self._gyro_lsb),
+            from_chip(self.axes, (ax, ay, az), self._acc_lsb),
+            from_chip(self.axes, (gx, gy, gz), self._gyro_lsb),
         )
-
-    def _board(self, chip: tuple[int, int, int], lsb: float) -> Vec3:
-        """Chip counts to the board's axes, in g or deg/s."""
-        return tuple(s * chip[i] * lsb for i, s in self.axes)  # type: ignore[return-value]
 
     def describe(self) -> dict[str, Any]:
         """JSON-able status for the ``board`` verb's listing."""

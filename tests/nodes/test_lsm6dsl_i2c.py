@@ -27,9 +27,9 @@ from hera.nodes.lsm6dsl.i2c import (
     GYRO_RANGES,
     IF_INC,
     I2cLsm6dsl,
-    parse_axes,
 )
 from hera.nodes.lsm6dsl.measures import Lsm6dsl
+from hera.nodes.mounting import parse_axes
 from hera.nodes.world import G
 
 WHERE = "I2C bus /dev/i2c-1, address 0x6a"

@@ -89,7 +89,9 @@ CASES = [
         + '{ address = 0x6c, axes = "y,x,z" } }\n'
         + '[[nodes.measures]]\nuse = "sonar"\nsync = false\nargs = { driver = '
         + '"hera.nodes.serial_sonar:SerialMaxSonar" }\n'
-        + '[[nodes.measures]]\nuse = "nav"\nargs = { driver = "mydrivers.NavBoard" }\n',
+        + '[[nodes.measures]]\nuse = "nav"\nargs = { driver = "mydrivers.NavBoard" }\n'
+        + '[[nodes.measures]]\nuse = "nav3"\nargs = { board = "nav2", driver = '
+        + '"hera.nodes.nav_spi:SpiPmodNav", driver_args = { ag = "spidev0.0", odr_hz = 100 } }\n',
         [
             "measure 'lsm6dsl' of node 'a': args: driver_args: unknown key 'buss' (did you "
             "mean 'bus'?); hera.nodes.lsm6dsl.i2c:I2cLsm6dsl takes bus, address, odr_hz, "
@@ -104,6 +106,10 @@ CASES = [
             "hera.nodes.serial_sonar:SerialMaxSonar",
             "measure 'nav' of node 'a': args: driver must be 'package.module:Class', got "
             "'mydrivers.NavBoard'",
+            "measure 'nav3' of node 'a': args: driver_args: ag must be a device path, got "
+            "'spidev0.0'",
+            "measure 'nav3' of node 'a': args: driver_args: odr_hz must be one of (14.9, 59.5, "
+            "119.0, 238.0, 476.0, 952.0) (Hz), got 100",
         ],
     ),
     ("[cluster\n", ["invalid TOML: "]),

@@ -38,10 +38,10 @@ from hera.nodes.lsm6dsl.i2c import (
     WHO_AM_I,
     XLDA,
     I2cLsm6dsl,
-    parse_axes,
 )
 from hera.nodes.lsm6dsl.model import ImuModel
 from hera.nodes.lsm6dsl.sim import SimLsm6dsl
+from hera.nodes.mounting import parse_axes, to_chip
 from hera.nodes.world import epoch_of, make_scenario
 
 Vec = tuple[float, float, float]
@@ -203,15 +203,9 @@ class ChipOnFakeBus(_OnFakeBus):
         board = leaning(theta_deg, tuple(bias_dps or (0.0, 0.0, 0.0)))  # type: ignore[arg-type]
         mount = parse_axes(driver_args.get("axes", "x,y,z"))
 
-        def chip_axes(v: Vec) -> Vec:  # board j = s_j chip[i_j], so chip[i_j] = s_j board j
-            out = [0.0, 0.0, 0.0]
-            for j, (i, sign) in enumerate(mount):
-                out[i] = sign * v[j]
-            return tuple(out)  # type: ignore[return-value]
-
         def signal(t: float) -> tuple[Vec, Vec]:
             acc, gyro = board(t)
-            return chip_axes(acc), chip_axes(gyro)
+            return to_chip(mount, acc), to_chip(mount, gyro)
 
         super().__init__(signal, clock_error, driver_args)
 
