@@ -68,13 +68,14 @@ import contextlib
 import struct
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 from hera import wallclock
 from hera.nodes.driver import BoardDisconnected, ImuSample, NoReading
 from hera.nodes.geometry import Vec3
 from hera.nodes.mounting import from_chip, parse_axes
+from hera.nodes.spi import Opener, SpiLink, choice_problems, path_problems, speed_problems
 
 SPI_MODE = 3
 """Clock idle high, data taken on the rising edge (the chips' data sheets)."""
@@ -135,37 +136,10 @@ RESET_WAIT_S = 0.02
 (a chip reloads its trimming values then). The settings are read back: a chip that was not
 ready is a disconnected board this time and is set up again at the next read."""
 
-MAX_SPEED_HZ = 10_000_000
 
-
-def _open_periphery(path: str, mode: int, speed_hz: int) -> Any:
-    try:
-        from periphery import SPI
-    except ImportError:
-        raise ValueError(
-            "the SPI driver needs the python-periphery package: pip install 'hera-fusion[spi]'"
-        ) from None
-    return SPI(path, mode, speed_hz)
-
-
-def _one_of(name: str, value: Any, options: tuple | dict, unit: str = "") -> list[str]:
-    if isinstance(value, bool) or value not in options:
-        return [f"{name} must be one of {tuple(options)}{unit}, got {value!r}"]
-    return []
-
-
-def _path(name: str, value: Any, optional: bool) -> list[str]:
-    if value is None and optional:
-        return []
-    if isinstance(value, str) and value.startswith("/"):
-        return []
-    what = "a device path (as '/dev/spidev0.1') or none" if optional else "a device path"
-    return [f"{name} must be {what}, got {value!r}"]
-
-
-class _Device:
-    """One chip select: its spidev device, opened when first needed, and the chip's
-    register reads and writes (``auto_inc``: the chip needs bit 6 for a burst)."""
+class _Device(SpiLink):
+    """One chip of the Pmod on its chip select: its register reads and writes
+    (``auto_inc``: the chip needs bit 6 of the address for a burst) and its state."""
 
     def __init__(
         self,
@@ -174,28 +148,13 @@ class _Device:
         chip_id: int,
         speed_hz: int,
         auto_inc: bool,
-        open_spi: Callable[[str, int, int], Any],
+        open_spi: Opener | None,
     ) -> None:
-        self.path, self.role, self.chip_id = path, role, chip_id
-        self.where = f"SPI {path} ({role})"
-        self.speed_hz, self._open = speed_hz, open_spi
+        super().__init__(path, f"SPI {path} ({role})", SPI_MODE, speed_hz, open_spi)
+        self.role, self.chip_id = role, chip_id
         self._burst = READ | (AUTO_INC if auto_inc else 0)
-        self.spi: Any = None
         self.set_up = False
         self.fresh = False  # a sample made since the set-up
-
-    def fail(self, e: OSError) -> BoardDisconnected:
-        """Close the device after an error and say where it happened."""
-        self.close()
-        return BoardDisconnected(f"{self.where}: {e.strerror or e}")
-
-    def transfer(self, out: list[int]) -> list[int]:
-        try:
-            if self.spi is None:
-                self.spi = self._open(self.path, SPI_MODE, self.speed_hz)
-            return list(self.spi.transfer(out))
-        except OSError as e:
-            raise self.fail(e) from None
 
     def read(self, reg: int, n: int) -> bytes:
         """``n`` registers from ``reg`` on (one burst)."""
@@ -251,11 +210,8 @@ class _Device:
                 time.sleep(POLL_S)
 
     def close(self) -> None:
-        spi, self.spi = self.spi, None
         self.set_up = False
-        if spi is not None:
-            with contextlib.suppress(OSError):
-                spi.close()
+        super().close()
 
 
 class SpiPmodNav:
@@ -279,7 +235,7 @@ class SpiPmodNav:
         axes: str = "x,y,z",
         timeout_ms: float | None = None,
         *,
-        spi: Callable[[str, int, int], Any] | None = None,
+        spi: Opener | None = None,
     ) -> None:
         problems = self.check_args(
             {
@@ -316,14 +272,11 @@ class SpiPmodNav:
             CTRL_REG5_M: BDU_M,
         }
         self._baro_regs = {BARO_CTRL_REG2: 0x00, BARO_CTRL_REG1: PD | ODR_25HZ | BDU_P}
-        opener = spi or _open_periphery
-        self.ag = _Device(ag, "accelerometer and gyroscope", AG_ID, speed_hz, False, opener)
+        self.ag = _Device(ag, "accelerometer and gyroscope", AG_ID, speed_hz, False, spi)
         self.mag = (
-            None if mag is None else _Device(mag, "magnetometer", MAG_ID, speed_hz, True, opener)
+            None if mag is None else _Device(mag, "magnetometer", MAG_ID, speed_hz, True, spi)
         )
-        self.alt = (
-            None if alt is None else _Device(alt, "barometer", BARO_ID, speed_hz, True, opener)
-        )
+        self.alt = None if alt is None else _Device(alt, "barometer", BARO_ID, speed_hz, True, spi)
         self._lock = threading.RLock()
         self.reads = self.setups = self.resets_seen = 0
 
@@ -332,16 +285,13 @@ class SpiPmodNav:
         """Every problem with the constructor's arguments ``args`` (all of them, defaults
         filled in), one sentence each (also asked before any node starts:
         :func:`hera.nodes.boards.driver_problems`)."""
-        out = _path("ag", args["ag"], False) + _path("mag", args["mag"], True)
-        out += _path("alt", args["alt"], True)
-        speed = args["speed_hz"]
-        if isinstance(speed, bool) or not (isinstance(speed, int) and 0 < speed <= MAX_SPEED_HZ):
-            out.append(f"speed_hz must be an integer in (0, {MAX_SPEED_HZ}] (Hz), got {speed!r}")
-        out += _one_of("odr_hz", args["odr_hz"], ODRS_HZ, " (Hz)")
-        out += _one_of("acc_range_g", args["acc_range_g"], ACC_RANGES)
-        out += _one_of("gyro_range_dps", args["gyro_range_dps"], GYRO_RANGES)
-        out += _one_of("mag_range_gauss", args["mag_range_gauss"], MAG_RANGES)
-        out += _one_of("mag_odr_hz", args["mag_odr_hz"], MAG_ODRS_HZ, " (Hz)")
+        out = path_problems("ag", args["ag"]) + path_problems("mag", args["mag"], True)
+        out += path_problems("alt", args["alt"], True) + speed_problems(args["speed_hz"])
+        out += choice_problems("odr_hz", args["odr_hz"], ODRS_HZ, " (Hz)")
+        out += choice_problems("acc_range_g", args["acc_range_g"], ACC_RANGES)
+        out += choice_problems("gyro_range_dps", args["gyro_range_dps"], GYRO_RANGES)
+        out += choice_problems("mag_range_gauss", args["mag_range_gauss"], MAG_RANGES)
+        out += choice_problems("mag_odr_hz", args["mag_odr_hz"], MAG_ODRS_HZ, " (Hz)")
         timeout_ms = args["timeout_ms"]
         if timeout_ms is not None and (
             isinstance(timeout_ms, bool)

@@ -1,5 +1,7 @@
-"""A Pmod NAV at register level behind spidev-like devices, for the real SPI driver
-(``hera.nodes.nav_spi``) where no board or kernel SPI device is at hand.
+"""Chips behind spidev-like devices, for the real SPI drivers where no board or kernel SPI
+device is at hand: a Pmod NAV at register level (``hera.nodes.nav_spi``), an MCP3008 ADC
+(``hera.nodes.ir.mcp3008``) and a MAX31855 thermocouple amplifier
+(``hera.nodes.ir.max31855``).
 
 Each chip answers a transfer as its data sheet says: the first byte is the address (bit 7
 set for a read; the accelerometer/gyroscope advance the address through a burst when
@@ -21,7 +23,10 @@ import random
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
+from hera.nodes.ir.max31855 import Max31855
+from hera.nodes.ir.mcp3008 import Mcp3008Ir
 from hera.nodes.mounting import parse_axes, to_chip
 from hera.nodes.nav_spi import (
     ACC_RANGES,
@@ -262,7 +267,7 @@ class FakeSpiBus:
     """Devices by path, each a chip; ``open`` as ``periphery.SPI(path, mode, max_speed)``.
     ``unplugged``: None, or the byte every read gives with the board gone (MISO floating)."""
 
-    def __init__(self, chips: dict[str, _Chip]) -> None:
+    def __init__(self, chips: dict[str, Any]) -> None:
         self.chips = chips
         self.unplugged: int | None = None
         self.opened: list[FakeSpi] = []
@@ -330,4 +335,55 @@ class NavOnFakeSpi(SpiPmodNav):
             clock_error=clock_error,
             alt=None,
         )
+        super().__init__(**driver_args, spi=self.fake_bus.open)
+
+
+class AdcChip:
+    """An MCP3008: ``volts[channel]`` on its inputs, converted at ``vref`` into 10-bit codes
+    (a 3-byte transfer: start bit, single-ended flag and channel, then the null bit and the
+    code); ``asked`` keeps each request."""
+
+    def __init__(self, volts: dict[int, float], vref: float = 3.3) -> None:
+        self.volts, self.vref = volts, vref
+        self.asked: list[list[int]] = []
+
+    def transfer(self, data: list[int]) -> list[int]:
+        self.asked.append(list(data))
+        assert data[0] == 0x01 and data[1] & 0x80 and len(data) == 3, data
+        v = self.volts.get((data[1] >> 4) & 0x07, 0.0)
+        code = max(0, min(1023, int(v / self.vref * 1024)))
+        return [0x00, code >> 8, code & 0xFF]
+
+
+class ThermocoupleChip:
+    """A MAX31855: ``celsius`` at the junction, ``junction_c`` on the chip, and the fault
+    bits ``faults`` (1 open, 2 shorted to GND, 4 to VCC) in its 32-bit frame."""
+
+    def __init__(self, celsius: float, junction_c: float = 24.5, faults: int = 0) -> None:
+        self.celsius, self.junction_c, self.faults = celsius, junction_c, faults
+
+    def transfer(self, data: list[int]) -> list[int]:
+        hot = round(self.celsius / 0.25) & 0x3FFF
+        cold = round(self.junction_c / 0.0625) & 0xFFF
+        frame = hot << 18 | cold << 4 | self.faults | (1 << 16 if self.faults else 0)
+        return list(frame.to_bytes(4, "big"))[: len(data)]
+
+
+class IrOnFakeSpi(Mcp3008Ir):
+    """The real driver on a fake bus, for a node's spec (``driver = "fake_spi:IrOnFakeSpi"``):
+    an MCP3008 whose ``channel`` reads ``volts``; other arguments are the driver's."""
+
+    def __init__(self, volts: float = 1.0, **driver_args) -> None:
+        path = driver_args.get("device", "/dev/spidev0.0")
+        chip = AdcChip({driver_args.get("channel", 0): volts}, driver_args.get("vref", 3.3))
+        self.fake_bus = FakeSpiBus({path: chip})
+        super().__init__(**driver_args, spi=self.fake_bus.open)
+
+
+class ThermocoupleOnFakeSpi(Max31855):
+    """The real driver on a fake bus, for a node's spec: a MAX31855 reading ``celsius``."""
+
+    def __init__(self, celsius: float = 21.0, **driver_args) -> None:
+        path = driver_args.get("device", "/dev/spidev0.1")
+        self.fake_bus = FakeSpiBus({path: ThermocoupleChip(celsius)})
         super().__init__(**driver_args, spi=self.fake_bus.open)
