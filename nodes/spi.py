@@ -29,16 +29,16 @@ Opener = Callable[[str, int, int], Any]
 list of bytes`` (as many back as out) and ``close()``: ``periphery.SPI`` or a test's fake."""
 
 
-def open_periphery(path: str, mode: int, speed_hz: int) -> Any:
-    """``periphery.SPI(path, mode, speed_hz)``; ValueError naming the extra to install when
-    python-periphery is missing."""
+def periphery_spi() -> Opener:
+    """``periphery.SPI`` (called as ``(path, mode, speed_hz)``); ValueError naming the extra
+    to install when python-periphery is missing."""
     try:
         from periphery import SPI
     except ImportError:
         raise ValueError(
             "the SPI drivers need the python-periphery package: pip install 'hera-fusion[spi]'"
         ) from None
-    return SPI(path, mode, speed_hz)
+    return SPI  # type: ignore[no-any-return]
 
 
 class SpiLink:
@@ -48,7 +48,7 @@ class SpiLink:
         self, path: str, where: str, mode: int, speed_hz: int, open_spi: Opener | None = None
     ) -> None:
         self.path, self.where, self.mode, self.speed_hz = path, where, mode, speed_hz
-        self._open = open_spi or open_periphery
+        self._open = open_spi or periphery_spi()  # a missing package refuses the driver now
         self.spi: Any = None
 
     @property
