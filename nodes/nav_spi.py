@@ -440,7 +440,8 @@ class SpiPmodNav:
             "kind": self.kind,
             "devices": {d.role: d.path for d in devices},
             "odr_hz": self.odr_hz,
-            "connected": all(d.set_up for d in devices),
+            "connected": self.ag.set_up,  # the accelerometer/gyroscope, every read's chip
+            "set_up": [d.role for d in devices if d.set_up],
             "reads": self.reads,
             "setups": self.setups,
             "resets_seen": self.resets_seen,

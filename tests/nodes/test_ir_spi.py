@@ -161,6 +161,11 @@ def test_a_node_publishes_its_adc_and_thermocouple_and_waits_for_a_device_not_th
     for row in ir_rows:
         assert [float(v) for v in row[2:]] == pytest.approx([1.25, 10.0, 20.0, 90.0], abs=4e-3)
     assert all([float(v) for v in row[2:]] == [31.5, 5.0, 5.0] for row in tc_rows)
+    listing = {b["board"]: b for b in c.control("plate", "board", {})["boards"]}
+    adc, amp = listing["plate/ir"], listing["plate/tc"]
+    assert adc["kind"] == "sharp-ir-mcp3008" and adc["channel"] == 3 and adc["connected"], adc
+    assert amp["kind"] == "thermocouple-max31855" and amp["junction_c"] == 24.5, amp
+    assert not listing["plate/tc_b"]["connected"]
     m = c.status("plate")["measures"]
     assert m["ir"]["trouble"] is None and m["tc"]["trouble"] is None, m
     b = m["tc_b"]

@@ -351,6 +351,11 @@ def test_a_node_publishes_its_pmod_nav_and_waits_for_a_device_not_there(cluster)
     steps = [b - a for a, b in pairwise(r[0] for r in rows()[-60:])]  # ms
     off = [abs(s - round(s / chip_ms) * chip_ms) for s in steps]
     assert statistics.median(off) < 0.7, steps
+    listing = {b["board"]: b for b in c.control("train", "board", {})["boards"]}
+    nav = listing["train/nav"]
+    assert nav["kind"] == "pmod-nav-spi" and nav["connected"] and nav["reads"] >= 60, nav
+    assert nav["set_up"] == ["accelerometer and gyroscope"]  # nav reads no magnetometer
+    assert not listing["train/nav_b"]["connected"]
     m = c.status("train")["measures"]
     assert m["nav"]["trouble"] is None and m["nav"]["crashes"] == 0, m["nav"]
     b = m["nav_b"]
