@@ -15,10 +15,11 @@ when the channel is unreachable, :class:`~hera.nodes.driver.NoReading` for a mis
 
 from __future__ import annotations
 
-import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
+
+from hera import wallclock
 
 
 @dataclass(frozen=True, slots=True)
@@ -97,7 +98,7 @@ class IrDriverBase(ABC):
     def read_volts(self) -> float: ...
 
     def read_sample(self) -> VoltageSample:
-        t = time.time()
+        t = wallclock.now()
         return VoltageSample(t, self.read_volts())
 
 
@@ -108,5 +109,5 @@ class ThermocoupleDriverBase(ABC):
     def read_celsius(self) -> float: ...
 
     def read_sample(self) -> TemperatureSample:
-        t = time.time()
+        t = wallclock.now()
         return TemperatureSample(t, self.read_celsius())
