@@ -28,8 +28,8 @@ through a burst (``CTRL_REG8`` IF_ADD_INC), the magnetometer and barometer when 
 address asks them to. Outputs are little-endian two's complement (the thesis's appendix E: the
 magnetometer read as unsigned put its sphere in four corners).
 
-What the chips are told: each a software reset, then block data update (a sample's two bytes
-always belong together); the accelerometer and gyroscope at ``odr_hz`` with their full
+What the chips are told (each setting read back after it is written): each a software
+reset, then block data update (a sample's two bytes always belong together); the accelerometer and gyroscope at ``odr_hz`` with their full
 scales (with both on, the accelerometer runs at the gyroscope's rate); the magnetometer
 continuous at ``mag_odr_hz``, ultra-high-performance on all three axes, temperature
 compensated; the barometer on at 25 Hz.
@@ -43,9 +43,10 @@ Reads: a read of the accelerometer/gyroscope waits for the next sample the chip 
 each read is a sample of its own, as the calibrations average) and stamps it when it was
 made: the driver polls the chip (about eight times a period, at most every millisecond) and
 takes the middle of the poll that still showed the previous sample and the one that showed
-the new (within half a poll of the chip's instant). A new sample is told by its content
-(the gyroscope's and temperature's output bytes change with every sample of a live chip),
-not by the status flags. Each poll also reads ``WHO_AM_I`` and the gyroscope's control
+the new (within half a poll of the chip's instant). A new sample is told by its content,
+not by the status flags: the gyroscope's and temperature's output bytes change from one
+sample to the next on a live chip, its noise alone sees to that (a sample that repeats the
+last one to the bit is taken as the next one that does not, stamped as that one). Each poll also reads ``WHO_AM_I`` and the gyroscope's control
 register (one burst from 0x0F to 0x1D), so a chip that is gone or was reset shows at once.
 The magnetometer and barometer give their newest sample (80 and 25 Hz, above what the
 measures read). Scales (data sheets, mechanical characteristics): 0.061 mg/LSB at 2 g ..
@@ -357,10 +358,10 @@ class SpiPmodNav:
         """The next sample of the accelerometer and gyroscope (and the newest of the
         magnetometer if ``mag``), stamped when the chip made it."""
         with self._lock:
-            if mag:
-                self._mag_ready()  # set up first: its reset wait does not delay the sample
+            # the magnetometer checked (and set up) first: that does not delay the sample
+            mdev = self._mag_ready() if mag else None
             t, gyro, acc = self._next_sample()
-            m = self._read_mag() if mag else None
+            m = None if mdev is None else self._field(mdev)
             self.reads += 1
         return ImuSample(
             t,
@@ -380,7 +381,7 @@ class SpiPmodNav:
     def read_mag(self) -> Vec3:
         """The newest magnetic field sample (gauss), in the board frame."""
         with self._lock:
-            return self._read_mag()
+            return self._field(self._mag_ready())
 
     def _ready(
         self,
@@ -414,8 +415,9 @@ class SpiPmodNav:
             self.mag_odr_hz,
         )
 
-    def _read_mag(self) -> Vec3:
-        mx, my, mz = struct.unpack("<3h", self._mag_ready().read(OUT_X_M, 6))
+    def _field(self, dev: _Device) -> Vec3:
+        """The magnetometer's outputs (``dev``, ready) in gauss, in the board frame."""
+        mx, my, mz = struct.unpack("<3h", dev.read(OUT_X_M, 6))
         # the magnetometer die's x points the other way from the accelerometer's
         return from_chip(self.axes, (-mx, my, mz), self._mag_lsb)
 
