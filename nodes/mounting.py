@@ -15,9 +15,10 @@ Axes = tuple[tuple[int, float], ...]
 """For each board axis x, y, z: (the chip axis 0..2 it is, its sign)."""
 
 
-def parse_axes(axes: str) -> Axes:
+def parse_axes(axes: str, arg: str = "axes", mirror_ok: bool = False) -> Axes:
     """For each board axis x, y, z: (the chip axis 0..2, its sign), from ``"-y,x,z"``;
-    ValueError naming what is wrong."""
+    ValueError naming what is wrong (``arg``: the argument, in the message). A mirror image
+    is refused unless ``mirror_ok``: the labels of two dies in one package may differ so."""
     parts = [p.strip() for p in str(axes).split(",")]
     out: list[tuple[int, float]] = []
     for p in parts:
@@ -29,15 +30,15 @@ def parse_axes(axes: str) -> Axes:
         out.append(("xyz".index(name), sign))
     if len(parts) != 3 or len(out) != 3 or len({a for a, _ in out}) != 3:
         raise ValueError(
-            f"axes must name each chip axis once with an optional sign, as '-y,x,z', got {axes!r}"
+            f"{arg} must name each chip axis once with an optional sign, as '-y,x,z', got {axes!r}"
         )
     # The determinant of a signed permutation: its signs times the permutation's parity.
     perm = [a for a, _ in out]
     inversions = sum(perm[i] > perm[j] for i in range(3) for j in range(i + 1, 3))
     det = math.prod(s for _, s in out) * (-1.0) ** inversions
-    if det < 0:
+    if det < 0 and not mirror_ok:
         raise ValueError(
-            f"axes {axes!r} is a mirror image of the chip's frame (no chip can be mounted so): "
+            f"{arg} {axes!r} is a mirror image of the chip's frame (no chip can be mounted so): "
             f"turn the sign of one more axis"
         )
     return tuple(out)

@@ -19,7 +19,9 @@ The arguments:
 - ``axes``: where the chip's accelerometer/gyroscope axes point on the board, as three signed
   chip axes giving the board's x, y and z (:mod:`hera.nodes.mounting`; ``"x,y,z"``, the
   default, for a Pmod lying with its chip's axes as the board's);
-- ``timeout_ms``: how long a read waits for a new sample (three periods by default).
+- ``timeout_ms``: how long a read waits for a new sample (three periods by default);
+- ``mag_axes``: where the magnetometer die's axes lie in the accelerometer's frame (see
+  Frames, below).
 
 Wire protocol (LSM9DS1 and LPS25HB data sheets; the GRiSP ``pmod_nav`` driver of the thesis
 does the same): SPI mode 3, most significant bit first; the first byte is the register
@@ -28,30 +30,34 @@ through a burst (``CTRL_REG8`` IF_ADD_INC), the magnetometer and barometer when 
 address asks them to. Outputs are little-endian two's complement (the thesis's appendix E: the
 magnetometer read as unsigned put its sphere in four corners).
 
-What the chips are told (each setting read back after it is written): each a software
-reset, then block data update (a sample's two bytes always belong together); the accelerometer and gyroscope at ``odr_hz`` with their full
-scales (with both on, the accelerometer runs at the gyroscope's rate); the magnetometer
-continuous at ``mag_odr_hz``, ultra-high-performance on all three axes, temperature
-compensated; the barometer on at 25 Hz.
+What the chips are told (each setting read back after it is written): each a software reset,
+then block data update (a sample's two bytes always belong together); the accelerometer and
+gyroscope at ``odr_hz`` with their full scales (with both on, the accelerometer runs at the
+gyroscope's rate); the magnetometer continuous at ``mag_odr_hz``, ultra-high-performance on
+all three axes, temperature compensated; the barometer on at 25 Hz.
 
-Frames: the magnetometer die's x axis points the other way from the accelerometer's (its y
-and z the same way): the thesis's ``nav3`` measure negates it against the accelerometer, as
-do other LSM9DS1 drivers. The driver returns all three sensors in the accelerometer's frame
-turned by ``axes``: the board frame of :mod:`hera.nodes.driver`.
+Frames: the driver returns all three sensors in the accelerometer's frame turned by
+``axes``: the board frame of :mod:`hera.nodes.driver`. The magnetometer is a die of its own
+whose axes are labelled differently: ``mag_axes`` (default ``"-x,y,z"``) says where they
+lie in the accelerometer's frame, here its x negated, as the thesis's ``nav3`` measure read
+this board. That is the one source found for this board; other LSM9DS1 code disagrees
+(ArduPilot turns its magnetometer a half turn about x on one board, SparkFun's example swaps
+x and y), and the data sheet's figure was not at hand. Check it on a board: turned about z,
+its heading must turn the same way as the gyroscope's; if not, give ``mag_axes``.
 
 Reads: a read of the accelerometer/gyroscope waits for the next sample the chip makes (so
 each read is a sample of its own, as the calibrations average) and stamps it when it was
 made: the driver polls the chip (about eight times a period, at most every millisecond) and
 takes the middle of the poll that still showed the previous sample and the one that showed
-the new (within half a poll of the chip's instant). A new sample is told by its content,
-not by the status flags: the gyroscope's and temperature's output bytes change from one
-sample to the next on a live chip, its noise alone sees to that (a sample that repeats the
-last one to the bit is taken as the next one that does not, stamped as that one). Each poll also reads ``WHO_AM_I`` and the gyroscope's control
-register (one burst from 0x0F to 0x1D), so a chip that is gone or was reset shows at once.
-The magnetometer and barometer give their newest sample (80 and 25 Hz, above what the
-measures read). Scales (data sheets, mechanical characteristics): 0.061 mg/LSB at 2 g ..
-0.732 at 16 g, 8.75 mdps/LSB at 245 dps .. 70 at 2000, 0.14 mgauss/LSB at 4 gauss .. 0.58
-at 16, pressure 1/4096 hPa/LSB.
+the new (within half a poll of the chip's instant). A new sample is told by its content, not
+by the status flags: the gyroscope's and temperature's output bytes change from one sample
+to the next on a live chip, its noise alone sees to that (a sample that repeats the last one
+to the bit is taken as the next one that does not, stamped as that one). Each poll also
+reads ``WHO_AM_I`` and the gyroscope's control register (one burst from 0x0F to 0x1D), so a
+chip that is gone or was reset shows at once. The magnetometer and barometer give their
+newest sample (80 and 25 Hz, above what the measures read). Scales (data sheets, mechanical
+characteristics): 0.061 mg/LSB at 2 g .. 0.732 at 16 g, 8.75 mdps/LSB at 245 dps .. 70 at
+2000, 0.14 mgauss/LSB at 4 gauss .. 0.58 at 16, pressure 1/4096 hPa/LSB.
 
 Errors, as the driver contract of :mod:`hera.nodes.driver` asks: no new sample within
 ``timeout_ms`` raises :class:`NoReading` (a dropout); a device that cannot be opened, or a
@@ -126,6 +132,11 @@ MAG_RANGES = {4: (0b00, 0.14e-3), 8: (0b01, 0.29e-3), 12: (0b10, 0.43e-3), 16: (
 
 MAG_ODRS_HZ = (0.625, 1.25, 2.5, 5.0, 10.0, 20.0, 40.0, 80.0)
 """The magnetometer's rates; codes 0..7 in ``CTRL_REG1_M`` bits 4:2."""
+
+MAG_AXES = "-x,y,z"
+"""The magnetometer die's axes in the accelerometer's frame, as the thesis's ``nav3`` measure
+read this board (its x negated against the accelerometer's); the driver argument
+``mag_axes`` overrides it."""
 
 HPA_PER_LSB = 1.0 / 4096.0
 
@@ -235,6 +246,7 @@ class SpiPmodNav:
         mag_odr_hz: float = 80.0,
         axes: str = "x,y,z",
         timeout_ms: float | None = None,
+        mag_axes: str = MAG_AXES,
         *,
         spi: Opener | None = None,
     ) -> None:
@@ -251,11 +263,13 @@ class SpiPmodNav:
                 "mag_odr_hz": mag_odr_hz,
                 "axes": axes,
                 "timeout_ms": timeout_ms,
+                "mag_axes": mag_axes,
             }
         )
         if problems:
             raise ValueError("; ".join(problems))
         self.axes = parse_axes(axes)
+        self.mag_axes = parse_axes(mag_axes, "mag_axes", mirror_ok=True)
         self.odr_hz, self.mag_odr_hz = float(odr_hz), float(mag_odr_hz)
         self.period = 1.0 / self.odr_hz
         self.poll = min(POLL_S, self.period / 8)
@@ -299,10 +313,11 @@ class SpiPmodNav:
             or not (isinstance(timeout_ms, (int, float)) and 0 < timeout_ms <= 10_000)
         ):
             out.append(f"timeout_ms must be a number of ms in (0, 10000], got {timeout_ms!r}")
-        try:
-            parse_axes(args["axes"])
-        except ValueError as e:
-            out.append(str(e))
+        for key in ("axes", "mag_axes"):
+            try:
+                parse_axes(args[key], key, mirror_ok=key == "mag_axes")
+            except ValueError as e:
+                out.append(str(e))
         return out
 
     # -- set-up ----------------------------------------------------------------------------
@@ -417,9 +432,8 @@ class SpiPmodNav:
 
     def _field(self, dev: _Device) -> Vec3:
         """The magnetometer's outputs (``dev``, ready) in gauss, in the board frame."""
-        mx, my, mz = struct.unpack("<3h", dev.read(OUT_X_M, 6))
-        # the magnetometer die's x points the other way from the accelerometer's
-        return from_chip(self.axes, (-mx, my, mz), self._mag_lsb)
+        die = struct.unpack("<3h", dev.read(OUT_X_M, 6))
+        return from_chip(self.axes, from_chip(self.mag_axes, die, self._mag_lsb), 1.0)
 
     def read_baro(self) -> float:
         """The newest air pressure sample (hPa)."""

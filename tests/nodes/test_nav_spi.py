@@ -123,6 +123,17 @@ def test_the_magnetometer_reads_in_the_board_frame(on_bus, gauss):
     assert driver.read_mag() == pytest.approx(FIELD, abs=4 * MAG_RANGES[gauss][1] + 1e-3)
 
 
+def test_the_magnetometer_die_lies_as_mag_axes_says():
+    # a board whose magnetometer is turned a half turn about x against the accelerometer
+    bus = pmod_nav_bus(still(ACC, GYRO, FIELD), mag_axes="x,-y,-z")
+    driver = SpiPmodNav(mag_axes="x,-y,-z", spi=bus.open)
+    assert driver.read_mag() == pytest.approx(FIELD, abs=2e-3)
+    driver.close()
+    wrong = SpiPmodNav(spi=pmod_nav_bus(still(ACC, GYRO, FIELD), mag_axes="x,-y,-z").open)
+    assert wrong.read_mag() == pytest.approx((0.25, -0.1, 0.45), abs=2e-3)  # every axis off
+    wrong.close()
+
+
 def test_the_axes_turn_the_chip_into_the_board(on_bus):
     driver, bus = on_bus(axes="-y,x,z", odr_hz=952.0)
     acc, gyro, mag = mean_reading(driver)
@@ -295,6 +306,10 @@ def test_periphery_on_a_device_that_is_not_there_is_a_disconnected_board():
             {"axes": "x,-y,z"},
             "axes 'x,-y,z' is a mirror image of the chip's frame (no chip can be mounted so): "
             "turn the sign of one more axis",
+        ),
+        (
+            {"mag_axes": "x,y"},
+            "mag_axes must name each chip axis once with an optional sign, as '-y,x,z', got 'x,y'",
         ),
         (
             {"odr_hz": 50, "mag_odr_hz": 100},

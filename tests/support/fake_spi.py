@@ -43,6 +43,7 @@ from hera.nodes.nav_spi import (
     CTRL_REG8,
     GYRO_RANGES,
     IF_ADD_INC,
+    MAG_AXES,
     MAG_ID,
     MAG_ODRS_HZ,
     MAG_RANGES,
@@ -195,14 +196,17 @@ class AccGyroChip(_Chip):
 
 
 class MagChip(_Chip):
-    """The LSM9DS1's magnetometer; its x axis points the other way from the
-    accelerometer's: it reads (-x, y, z) of the field ``signal`` gives in that frame."""
+    """The LSM9DS1's magnetometer, its die's axes lying as ``mag_axes`` says (the driver's
+    argument) in the accelerometer's frame, in which ``signal`` gives the field."""
 
     chip_id = MAG_ID
     reset_reg, reset_bit = CTRL_REG2_M, SOFT_RST
 
-    def __init__(self, signal: Signal, noise_lsb: float = 3.0, **kw) -> None:
+    def __init__(
+        self, signal: Signal, noise_lsb: float = 3.0, mag_axes: str = MAG_AXES, **kw
+    ) -> None:
         self.signal, self.noise_lsb = signal, noise_lsb
+        self.die = parse_axes(mag_axes, mirror_ok=True)
         super().__init__(**kw)
 
     def power_on(self) -> None:
@@ -215,12 +219,10 @@ class MagChip(_Chip):
         return MAG_ODRS_HZ[(self.regs[CTRL_REG1_M] >> 2) & 0b111]
 
     def sample(self, t: float) -> None:
-        x, y, z = self.signal(t)[2]
+        field = to_chip(self.die, self.signal(t)[2])
         fs = (self.regs[CTRL_REG2_M] >> 5) & 0b11
         lsb = next(lsb for code, lsb in MAG_RANGES.values() if code == fs)
-        counts = tuple(
-            _count(v, lsb) + round(self.rng.gauss(0, self.noise_lsb)) for v in (-x, y, z)
-        )
+        counts = tuple(_count(v, lsb) + round(self.rng.gauss(0, self.noise_lsb)) for v in field)
         _put(self.regs, OUT_X_M, counts)
         self.regs[STATUS_REG_M] |= ZYXDA
 
@@ -289,6 +291,7 @@ def pmod_nav_bus(
     mag: str = "/dev/spidev0.1",
     alt: str | None = "/dev/spidev1.0",
     seed: int = 0,
+    mag_axes: str = MAG_AXES,
 ) -> FakeSpiBus:
     """A Pmod NAV on a fake bus: ``signal`` in the board frame, the chip mounted as
     ``axes`` says (the driver's argument), so it reads the board's values in its own axes."""
@@ -299,7 +302,7 @@ def pmod_nav_bus(
 
     chips: dict[str, _Chip] = {
         ag: AccGyroChip(in_chip, clock_error=clock_error, seed=seed),
-        mag: MagChip(in_chip, seed=seed + 1),
+        mag: MagChip(in_chip, seed=seed + 1, mag_axes=mag_axes),
     }
     if alt is not None:
         chips[alt] = BaroChip(seed=seed + 2)
