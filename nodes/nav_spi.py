@@ -43,7 +43,8 @@ lie in the accelerometer's frame, here its x negated, as the thesis's ``nav3`` m
 this board. That is the one source found for this board; other LSM9DS1 code disagrees
 (ArduPilot turns its magnetometer a half turn about x on one board, SparkFun's example swaps
 x and y), and the data sheet's figure was not at hand. Check it on a board: turned about z,
-its heading must turn the same way as the gyroscope's; if not, give ``mag_axes``.
+its heading must turn the same way as the gyroscope's, and lying flat its field's z must be
+negative (the field points down, in the northern hemisphere); if not, give ``mag_axes``.
 
 Reads: a read of the accelerometer/gyroscope waits for the next sample the chip makes (so
 each read is a sample of its own, as the calibrations average) and stamps it when it was
