@@ -43,7 +43,6 @@ from hera.nodes.nav_spi import (
     CTRL_REG8,
     GYRO_RANGES,
     IF_ADD_INC,
-    MAG_AXES,
     MAG_ID,
     MAG_ODRS_HZ,
     MAG_RANGES,
@@ -195,6 +194,11 @@ class AccGyroChip(_Chip):
         _put(self.regs, 0x15, (400 + round(noisy(0, 3.0)),))  # OUT_TEMP: 25 + 400 / 16 deg C
 
 
+BOARD_MAG_AXES = "-x,y,z"
+"""Where the played board's magnetometer die lies in the accelerometer's frame: as the
+thesis's ``nav3`` read its Pmod NAV (the driver's default must agree, and is tested so)."""
+
+
 class MagChip(_Chip):
     """The LSM9DS1's magnetometer, its die's axes lying as ``mag_axes`` says (the driver's
     argument) in the accelerometer's frame, in which ``signal`` gives the field."""
@@ -203,7 +207,7 @@ class MagChip(_Chip):
     reset_reg, reset_bit = CTRL_REG2_M, SOFT_RST
 
     def __init__(
-        self, signal: Signal, noise_lsb: float = 3.0, mag_axes: str = MAG_AXES, **kw
+        self, signal: Signal, noise_lsb: float = 3.0, mag_axes: str = BOARD_MAG_AXES, **kw
     ) -> None:
         self.signal, self.noise_lsb = signal, noise_lsb
         self.die = parse_axes(mag_axes, mirror_ok=True)
@@ -291,7 +295,7 @@ def pmod_nav_bus(
     mag: str = "/dev/spidev0.1",
     alt: str | None = "/dev/spidev1.0",
     seed: int = 0,
-    mag_axes: str = MAG_AXES,
+    mag_axes: str = BOARD_MAG_AXES,
 ) -> FakeSpiBus:
     """A Pmod NAV on a fake bus: ``signal`` in the board frame, the chip mounted as
     ``axes`` says (the driver's argument), so it reads the board's values in its own axes."""
