@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from hera.measure import MeasureContext
+from hera.measure import MeasureContext, NotReady
 from hera.nodes.driver import NavDriver, NoReading
 from hera.nodes.geometry import Vec3, wrap_angle
 
@@ -83,11 +83,19 @@ def _held(nav: NavDriver) -> AbstractContextManager[Any]:
     return hold() if hold is not None else nullcontext()
 
 
+class CannotTurn(ValueError):
+    """A calibration needs the board turned and the board cannot turn itself (a real one)."""
+
+
 def default_turn(nav: NavDriver) -> Turn:
-    """The simulator's own ``turn``; a real driver has none (pass one that asks a person)."""
+    """The simulator's own ``turn``; a real driver has none (pass one that asks a person):
+    :class:`CannotTurn`."""
     turn = getattr(nav, "turn", None)
     if turn is None:
-        raise ValueError("this board cannot turn itself: pass turn=<function asking a person>")
+        raise CannotTurn(
+            "this board cannot turn itself: calibrate it by hand, a person turning it "
+            "(turn=<a function asking them>)"
+        )
     return turn
 
 
@@ -259,14 +267,22 @@ def stored_or_run(
     ctx: MeasureContext, run: Callable[[], dict[str, Any]], check: Callable[[Any], bool]
 ) -> dict[str, Any]:
     """The calibration stored for this measure if ``check`` accepts it, else ``run()`` it
-    and store the result (so a restarted measure does not recalibrate)."""
+    and store the result (so a restarted measure does not recalibrate). A calibration that
+    needs a person (:class:`CannotTurn`) is NotReady: the measure waits until one is stored
+    (``hera args set NODE calib/NODE/MEASURE JSON``) and then starts with it."""
     key = calib_key(ctx)
     held = ctx.args.get(key)
     if held is not None and check(held):
         return dict(held)
     if held is not None:
         ctx.log.warning("ignoring malformed calibration %s = %r; recalibrating", key, held)
-    result = run()
+    try:
+        result = run()
+    except CannotTurn as e:
+        raise NotReady(
+            f"no calibration stored at {key}, and {e}; store its result with "
+            f"'hera args set {ctx.node} {key} JSON' (README: a real Pmod NAV)"
+        ) from None
     ctx.args.put(key, result)
     return result
 

@@ -55,10 +55,12 @@ by the status flags: the gyroscope's and temperature's output bytes change from 
 to the next on a live chip, its noise alone sees to that (a sample that repeats the last one
 to the bit is taken as the next one that does not, stamped as that one). Each poll also
 reads ``WHO_AM_I`` and the gyroscope's control register (one burst from 0x0F to 0x1D), so a
-chip that is gone or was reset shows at once. The magnetometer and barometer give their
-newest sample (80 and 25 Hz, above what the measures read). Scales (data sheets, mechanical
-characteristics): 0.061 mg/LSB at 2 g .. 0.732 at 16 g, 8.75 mdps/LSB at 245 dps .. 70 at
-2000, 0.14 mgauss/LSB at 4 gauss .. 0.58 at 16, pressure 1/4096 hPa/LSB.
+chip that is gone or was reset shows at once. ``read_imu`` gives the magnetometer's newest
+sample with the accelerometer's (80 Hz, above what the measures read); ``read_mag`` waits
+for one it has not given yet (what the magnetometer's calibrations average); the barometer
+gives its newest (25 Hz). Scales (data sheets, mechanical characteristics): 0.061 mg/LSB at
+2 g .. 0.732 at 16 g, 8.75 mdps/LSB at 245 dps .. 70 at 2000, 0.14 mgauss/LSB at 4 gauss ..
+0.58 at 16, pressure 1/4096 hPa/LSB.
 
 Errors, as the driver contract of :mod:`hera.nodes.driver` asks: no new sample within
 ``timeout_ms`` raises :class:`NoReading` (a dropout); a device that cannot be opened, or a
@@ -294,6 +296,7 @@ class SpiPmodNav:
         )
         self.alt = None if alt is None else _Device(alt, "barometer", BARO_ID, speed_hz, True, spi)
         self._lock = threading.RLock()
+        self._last_field = b""  # the magnetometer's output bytes read_mag returned last
         self.reads = self.setups = self.resets_seen = 0
 
     @classmethod
@@ -377,7 +380,7 @@ class SpiPmodNav:
             # the magnetometer checked (and set up) first: that does not delay the sample
             mdev = self._mag_ready() if mag else None
             t, gyro, acc = self._next_sample()
-            m = None if mdev is None else self._field(mdev)
+            m = None if mdev is None else self._field(mdev.read(OUT_X_M, 6))
             self.reads += 1
         return ImuSample(
             t,
@@ -395,9 +398,18 @@ class SpiPmodNav:
         return self.read_imu(mag=False).gyro
 
     def read_mag(self) -> Vec3:
-        """The newest magnetic field sample (gauss), in the board frame."""
+        """A magnetic field sample (gauss, board frame) not returned by ``read_mag`` before,
+        waited for up to three magnetometer periods (told by its content, as the
+        accelerometer's): a calibration's mean is over samples of their own."""
         with self._lock:
-            return self._field(self._mag_ready())
+            dev = self._mag_ready()
+            deadline = time.monotonic() + 3.0 / self.mag_odr_hz
+            while (raw := dev.read(OUT_X_M, 6)) == self._last_field:
+                if time.monotonic() > deadline:
+                    raise NoReading(f"{dev.where}: no new sample in {3e3 / self.mag_odr_hz:g} ms")
+                time.sleep(POLL_S)
+            self._last_field = raw
+            return self._field(raw)
 
     def _ready(
         self,
@@ -431,9 +443,9 @@ class SpiPmodNav:
             self.mag_odr_hz,
         )
 
-    def _field(self, dev: _Device) -> Vec3:
-        """The magnetometer's outputs (``dev``, ready) in gauss, in the board frame."""
-        die = struct.unpack("<3h", dev.read(OUT_X_M, 6))
+    def _field(self, raw: bytes) -> Vec3:
+        """The magnetometer's output bytes in gauss, in the board frame."""
+        die = struct.unpack("<3h", raw)
         return from_chip(self.axes, from_chip(self.mag_axes, die, self._mag_lsb), 1.0)
 
     def read_baro(self) -> float:

@@ -13,10 +13,10 @@ import time
 from itertools import pairwise
 
 import pytest
-from fake_spi import AccGyroChip, MagChip, pmod_nav_bus, still
+from fake_spi import AccGyroChip, MagChip, Turntable, pmod_nav_bus, still
 from harness import csv_rows, wait_for
 
-from hera.nodes.calibration import calibrate_nav
+from hera.nodes.calibration import calibrate_mag, calibrate_nav, calibrate_nav3
 from hera.nodes.driver import BoardDisconnected, NavDriver, NoReading
 from hera.nodes.nav_spi import (
     ACC_RANGES,
@@ -180,6 +180,29 @@ def test_calibration_averages_samples_of_their_own(on_bus):
     assert cal["gyro"] == pytest.approx(GYRO, abs=0.01)
 
 
+def test_a_person_turning_the_board_calibrates_its_magnetometer():
+    # A real board cannot turn itself: the calibrations take turn=<a function asking a
+    # person> (README), here a turntable; each mean is over magnetometer samples of their own.
+    table = Turntable()
+    bus = pmod_nav_bus(table.signal)
+    driver = SpiPmodNav(spi=bus.open)
+    before = bus.chips[MAG].samples
+    cal = calibrate_mag(driver, turn=table.turn, n=10)
+    assert bus.chips[MAG].samples - before >= 30  # three means of ten samples each
+    assert cal["bias"] == pytest.approx(table.hard_iron[:2], abs=1e-3)
+    assert cal["offset"] == pytest.approx(math.atan2(0.0, 0.2), abs=0.01)
+    cal3 = calibrate_nav3(driver, turn=table.turn, n_gyro=20, n_mag=10)
+    assert cal3["mag"] == pytest.approx(table.hard_iron, abs=1e-3)
+    assert cal3["gyro"] == pytest.approx(table.gyro_bias, abs=0.02)
+    assert table.turns == [("z", 180.0), ("z", -180.0)] + [
+        ("z", 180.0),
+        ("x", 180.0),
+        ("x", -180.0),
+        ("z", -180.0),
+    ]
+    driver.close()
+
+
 @pytest.mark.parametrize("floats", [0xFF, 0x00])
 def test_a_board_unplugged_is_never_a_reading_and_comes_back(on_bus, floats):
     driver, bus = on_bus()
@@ -338,6 +361,11 @@ name = "nav"
 period = 0.05
 args = { calib_samples = 20, driver = "fake_spi:NavOnFakeSpi", driver_args = { odr_hz = 59.5, start_s = 4.0, rate_dps = 30.0, clock_error = 0.02 } }
 [[nodes.measures]]
+use = "mag"
+name = "mag"
+period = 0.1
+args = { driver = "fake_spi:NavOnFakeSpi" }
+[[nodes.measures]]
 use = "nav"
 name = "nav_b"
 period = 0.1
@@ -373,6 +401,18 @@ def test_a_node_publishes_its_pmod_nav_and_waits_for_a_device_not_there(cluster)
     assert not listing["train/nav_b"]["connected"]
     m = c.status("train")["measures"]
     assert m["nav"]["trouble"] is None and m["nav"]["crashes"] == 0, m["nav"]
+    # mag's calibration turns the board: on a real one it waits for one stored by hand
+    assert m["mag"]["trouble"].startswith(
+        "waiting to start: no calibration stored at calib/train/mag, and this board cannot "
+        "turn itself"
+    ), m["mag"]
+    calibration = {"bias": [0.0, 0.0], "offset": 0.0, "n": 10}
+    assert c.control(
+        "train", "args", {"op": "set", "key": "calib/train/mag", "value": calibration}
+    )["ok"]
+    headings = c.run_dir / "measures" / "mag_train.csv"
+    wait_for(lambda: len(csv_rows(headings)) >= 5, 20, "mag started on the stored calibration")
+    assert c.status("train")["measures"]["mag"]["trouble"] is None
     b = m["nav_b"]
     assert b["state"] == "running" and b["crashes"] == 0 and b["restarts"] == 0, b
     assert b["trouble"] == (  # its calibration waits for the board before it starts

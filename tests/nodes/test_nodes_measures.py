@@ -13,6 +13,7 @@ import pytest
 from nodes_helpers import FakeClock, boards_of, make_ctx
 
 from hera.args import ArgsStore
+from hera.measure import NotReady
 from hera.nodes import boards, calibration
 from hera.nodes import geometry as gm
 from hera.nodes.driver import NavDriver, NavDriverBase
@@ -203,8 +204,18 @@ def test_a_real_driver_replaces_the_simulator() -> None:
         from hera.nodes import faults
 
         faults.set_fault(boards_of(ctx), "n1/nav", "stuck")
-    with pytest.raises(ValueError, match="cannot turn itself"):
-        Mag().init({}, make_ctx("mag", resources=ctx.resources))
+    # a board that cannot turn itself: the measure waits for a calibration stored by hand
+    mag_ctx = make_ctx("mag", resources=ctx.resources)
+    with pytest.raises(NotReady) as e:
+        Mag().init({}, mag_ctx)
+    assert str(e.value) == (
+        "no calibration stored at calib/n1/mag, and this board cannot turn itself: calibrate "
+        "it by hand, a person turning it (turn=<a function asking them>); store its result "
+        "with 'hera args set n1 calib/n1/mag JSON' (README: a real Pmod NAV)"
+    )
+    mag_ctx.args.put("calib/n1/mag", {"bias": [0.0, 0.0], "offset": 0.0, "n": 10})
+    m = Mag()
+    m.init({}, mag_ctx)  # then it starts with the stored one
 
 
 def test_nav_args_are_checked() -> None:

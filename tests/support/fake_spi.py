@@ -327,6 +327,43 @@ def turning(start_s: float, rate_dps: float, bias_dps: Vec = (0.5, -0.3, 0.2)) -
     return signal
 
 
+class Turntable:
+    """A board a person turns by hand: ``turn(axis, degrees)`` turns it about its own x, y or
+    z (as the calibrations ask); :meth:`signal` gives, in its turned frame, gravity's
+    specific force, a gyroscope bias, and Earth's field ``earth`` (gauss, in the frame of
+    the board's first pose) plus the board's own ``hard_iron`` (gauss, its frame)."""
+
+    def __init__(
+        self,
+        earth: Vec = (0.2, 0.0, -0.44),
+        hard_iron: Vec = (0.12, -0.2, 0.08),
+        gyro_bias: Vec = (0.5, -0.3, 0.2),
+    ) -> None:
+        self.earth, self.hard_iron, self.gyro_bias = earth, hard_iron, gyro_bias
+        self.rot = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))  # first pose to board
+        self.turns: list[tuple[str, float]] = []
+
+    def turn(self, axis: str, degrees: float) -> None:
+        c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
+        i = "xyz".index(axis)
+        j, k = (i + 1) % 3, (i + 2) % 3
+        r = [[0.0] * 3 for _ in range(3)]  # a vector fixed in the world, seen by the board
+        r[i][i] = 1.0
+        r[j][j], r[j][k], r[k][j], r[k][k] = c, s, -s, c
+        self.rot = tuple(
+            tuple(sum(r[a][m] * self.rot[m][b] for m in range(3)) for b in range(3))
+            for a in range(3)
+        )  # type: ignore[assignment]
+        self.turns.append((axis, degrees))
+
+    def _seen(self, v: Vec) -> Vec:
+        return tuple(sum(self.rot[a][b] * v[b] for b in range(3)) for a in range(3))  # type: ignore[return-value]
+
+    def signal(self, t: float) -> tuple[Vec, Vec, Vec]:
+        field = tuple(e + h for e, h in zip(self._seen(self.earth), self.hard_iron, strict=True))
+        return self._seen((0.0, 0.0, 1.0)), self.gyro_bias, field  # type: ignore[return-value]
+
+
 class NavOnFakeSpi(SpiPmodNav):
     """The real driver on a fake bus, for a node's spec (``driver =
     "fake_spi:NavOnFakeSpi"``): a board still for ``start_s`` seconds, then turning about z
