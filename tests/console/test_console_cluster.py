@@ -417,7 +417,7 @@ def test_reload_swaps_the_model_without_a_gap_and_rolls_back_bad_code(train):
                 f"{node}: estimate gap at the reload {gap * 1e3:.0f} ms, worst gap of the "
                 f"3 s before {baseline * 1e3:.0f} ms, period {PERIOD * 1e3:.0f} ms"
             )
-            assert 0 <= gap <= max(2 * PERIOD, baseline), (node, gap, baseline)
+            assert 0 <= gap <= max(2 * PERIOD, baseline), (node, gap, baseline, out.stdout)
             # the state was handed over: the new code's first estimate is a converged one
             assert abs(rows[switch][2] - 0.84) < 0.02, rows[switch]
         # new code that does not import: rolled back, with the reason, on every node that
