@@ -200,7 +200,10 @@ def restore(saved: dict[str, ModuleType]) -> None:
 def swap(node: Node, name: str, cls: type, timeout: float = START_TIMEOUT) -> dict[str, Any]:
     """Replace the running measure ``name`` of ``node`` by one of class ``cls`` (see the
     module docstring, step 2); ReloadError saying why when the new one does not start, in
-    which case the measure runs its previous class again."""
+    which case the measure runs its previous class again. Returns ``running``, ``handover``
+    (whether green took blue's state) and ``switch_ms``: ms from the deadline blue gave up
+    (for a blue switched at once or abandoned, from the hand-over) to the start of green's
+    first step; under the period, no step was lost to the reload."""
     sup = node.supervisor
     child = sup.children[name]
     decl = node.decls[name]
@@ -256,7 +259,8 @@ def swap(node: Node, name: str, cls: type, timeout: float = START_TIMEOUT) -> di
             gate.set()
         else:
             handed.wait()  # blue is handing over right now
-    t_switch = switched[0]
+    # from the deadline blue gave up (retired at once: from the hand-over) to green's step
+    t_switch = blue.retired_deadline or switched[0]
     while green.stats.steps < 1:
         if failed or time.monotonic() > deadline:
             break

@@ -387,7 +387,11 @@ def _reload(client: ClusterClient, args: argparse.Namespace) -> int:
         else:
             replaced = ", ".join(
                 f"{name} ({'state handed over' if r.get('handover') else 'fresh'}"
-                + (f", {r['switch_ms']:.1f} ms" if r.get("switch_ms") is not None else "")
+                + (
+                    f", switched in {r['switch_ms']:.1f} ms"
+                    if r.get("switch_ms") is not None
+                    else ""
+                )
                 + ")"
                 for name, r in sorted(reply["replaced"].items())
             )

@@ -173,6 +173,8 @@ class Worker:
         self._retire: Callable[[Worker], None] | None = None
         self._retire_lock = threading.Lock()
         self._retiring = False
+        self.retired_deadline: float | None = None
+        """The deadline (monotonic) this worker gave up to its replacement (hot reload)."""
         self.thread = threading.Thread(
             target=self._run, name=f"measure-{self.spec.name}-{self.id}", daemon=True
         )
@@ -352,8 +354,9 @@ class Worker:
                 self.stats.overruns += missed
                 k += missed
                 deadline = start + k * period
-            if self._retire is not None:
-                break  # a hot reload: the new code steps at this deadline, in this one's place
+            if self._retire is not None:  # a hot reload: the new code steps at this deadline
+                self.retired_deadline = deadline
+                break
             if self._changes:
                 self._apply_changes()
                 now = time.monotonic()
@@ -401,8 +404,9 @@ class Worker:
         with self._beat_lock:
             if self._left or self._stop.is_set() or self.abandoned or deadline < self._not_before:
                 return
-            if self._retire is not None:
-                self._stop.set()  # a hot reload: the new code steps at this deadline
+            if self._retire is not None:  # a hot reload: the new code steps at this deadline
+                self.retired_deadline = deadline
+                self._stop.set()
                 return
             self._not_stepping.clear()
         self._stepper = threading.get_ident()
