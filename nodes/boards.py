@@ -39,6 +39,7 @@ from hera.measure import Measure, MeasureContext
 from hera.nodes import geometry as gm
 from hera.nodes.air import Air
 from hera.nodes.driver import NavDriver, SonarDriver
+from hera.nodes.driver_args import problems_of
 from hera.nodes.imu_model import NavModel
 from hera.nodes.noise import stable_seed
 from hera.nodes.sim_nav import SimNavBoard
@@ -211,12 +212,10 @@ def _driver_args_problems(cls: type, target: str, kwargs: Mapping[str, Any]) -> 
         for p in params
         if p.default is p.empty and p.kind is p.POSITIONAL_OR_KEYWORD and p.name not in kwargs
     ]
-    check = getattr(cls, "check_args", None)
-    if missing or not callable(check):
+    if missing:
         return unknown + missing
-    bound = inspect.signature(cls).bind(**{k: v for k, v in kwargs.items() if k in named})
-    bound.apply_defaults()
-    return unknown + [f"driver_args: {p}" for p in check(dict(bound.arguments))]
+    known = {k: v for k, v in kwargs.items() if k in named}
+    return unknown + [f"driver_args: {p}" for p in problems_of(cls, known)]
 
 
 def driver_problems(args: Mapping[str, Any], where: str) -> list[str]:

@@ -83,6 +83,7 @@ from typing import Any
 
 from hera import wallclock
 from hera.nodes.driver import BoardDisconnected, ImuSample, NoReading
+from hera.nodes.driver_args import checked_args
 from hera.nodes.geometry import Vec3
 from hera.nodes.mounting import from_chip, parse_axes
 from hera.nodes.spi import Opener, SpiLink, choice_problems, path_problems, speed_problems
@@ -229,6 +230,7 @@ class _Device(SpiLink):
         super().close()
 
 
+@checked_args
 class SpiPmodNav:
     """A Pmod NAV on SPI (see the module docstring). ``spi`` opens a device (default:
     ``periphery.SPI(path, mode, max_speed)``); anything with ``transfer(list of bytes) ->
@@ -253,24 +255,6 @@ class SpiPmodNav:
         *,
         spi: Opener | None = None,
     ) -> None:
-        problems = self.check_args(
-            {
-                "ag": ag,
-                "mag": mag,
-                "alt": alt,
-                "speed_hz": speed_hz,
-                "odr_hz": odr_hz,
-                "acc_range_g": acc_range_g,
-                "gyro_range_dps": gyro_range_dps,
-                "mag_range_gauss": mag_range_gauss,
-                "mag_odr_hz": mag_odr_hz,
-                "axes": axes,
-                "timeout_ms": timeout_ms,
-                "mag_axes": mag_axes,
-            }
-        )
-        if problems:
-            raise ValueError("; ".join(problems))
         self.axes = parse_axes(axes)
         self.mag_axes = parse_axes(mag_axes, "mag_axes", mirror_ok=True)
         self.odr_hz, self.mag_odr_hz = float(odr_hz), float(mag_odr_hz)

@@ -24,6 +24,7 @@ from typing import Any
 
 from hera import wallclock
 from hera.nodes.driver import BoardDisconnected
+from hera.nodes.driver_args import checked_args
 from hera.nodes.ir.driver import TemperatureSample
 from hera.nodes.spi import Opener, SpiLink, path_problems, speed_problems
 
@@ -47,6 +48,7 @@ def decode(frame: int) -> tuple[float, float]:
     )
 
 
+@checked_args
 class Max31855:
     """A thermocouple behind a MAX31855 (see the module docstring). ``spi`` opens the device
     (default ``periphery.SPI``; see :data:`hera.nodes.spi.Opener`)."""
@@ -60,9 +62,6 @@ class Max31855:
         *,
         spi: Opener | None = None,
     ) -> None:
-        problems = self.check_args({"device": device, "speed_hz": speed_hz})
-        if problems:
-            raise ValueError("; ".join(problems))
         self.link = SpiLink(device, f"SPI {device} (MAX31855)", 0, speed_hz, spi)
         self.reads = 0
         self.junction: float | None = None  # the chip's own temperature at the last read

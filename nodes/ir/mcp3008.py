@@ -32,6 +32,7 @@ from typing import Any
 
 from hera import wallclock
 from hera.nodes.driver import BoardDisconnected
+from hera.nodes.driver_args import checked_args
 from hera.nodes.ir.driver import VoltageSample
 from hera.nodes.spi import Opener, SpiLink, path_problems, speed_problems
 
@@ -47,6 +48,7 @@ NULL_BIT = 0x04
 MAX_SPEED_HZ = 3_600_000
 
 
+@checked_args
 class Mcp3008Ir:
     """A Sharp IR sensor on one channel of an MCP3008 (see the module docstring). ``spi``
     opens the device (default ``periphery.SPI``; see :data:`hera.nodes.spi.Opener`)."""
@@ -62,11 +64,6 @@ class Mcp3008Ir:
         *,
         spi: Opener | None = None,
     ) -> None:
-        problems = self.check_args(
-            {"device": device, "channel": channel, "vref": vref, "speed_hz": speed_hz}
-        )
-        if problems:
-            raise ValueError("; ".join(problems))
         self.channel, self.vref = channel, float(vref)
         self.link = SpiLink(device, f"SPI {device} (MCP3008 channel {channel})", 0, speed_hz, spi)
         self._ask = [START, SINGLE | channel << 4, 0x00]

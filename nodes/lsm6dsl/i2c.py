@@ -58,6 +58,7 @@ from typing import Any
 from hera import wallclock
 from hera.nodes.data_ready import DataReadyClock
 from hera.nodes.driver import BoardDisconnected, NoReading
+from hera.nodes.driver_args import checked_args
 from hera.nodes.lsm6dsl.driver import ODRS_HZ, ImuReading
 from hera.nodes.mounting import from_chip, parse_axes
 
@@ -117,6 +118,7 @@ def _open_smbus(bus: int | str) -> Any:
     return SMBus(bus)
 
 
+@checked_args
 class I2cLsm6dsl:
     """An LSM6DSL on an I2C bus (see the module docstring). ``smbus`` opens the bus (default:
     ``smbus2.SMBus``); anything answering ``read_byte_data``, ``write_byte_data``,
@@ -136,19 +138,6 @@ class I2cLsm6dsl:
         *,
         smbus: Callable[[int | str], Any] | None = None,
     ) -> None:
-        problems = self.check_args(
-            {
-                "bus": bus,
-                "address": address,
-                "odr_hz": odr_hz,
-                "acc_range_g": acc_range_g,
-                "gyro_range_dps": gyro_range_dps,
-                "axes": axes,
-                "timeout_ms": timeout_ms,
-            }
-        )
-        if problems:
-            raise ValueError("; ".join(problems))
         if timeout_ms is None:
             timeout_ms = 500.0 / odr_hz
         self.axes = parse_axes(axes)
