@@ -129,11 +129,15 @@ class TrainTracker:
     Parameters (all optional): ``rung``; ``radius`` (m, the known radius of e4-e7, the
     initial one of e8-e9: 1.0 as in the original), ``radius_var0`` (m^2, its initial
     variance in e8-e9: 1.0 as in the original); ``center`` [x, y] (m);
-    ``var_acc`` 0.8 (eq. 6.1), ``var_gyro`` 0.005 (eq. 6.4), ``var_sonar`` 0.02 (while
-    acquiring; the thesis's 0.0625 of eq. 6.3 absorbed the point model's error, our surface
-    model needs less), ``var_sonar_track`` 1e-3 (locked; None: always ``var_sonar``, never
-    locked), ``var_mag`` 0.015 (eq. 6.9), ``var_bilat`` 0.25 (m^2: two sonars see different
-    points of the train, so bilateration fixes are off by 10-25 cm); ``omega0`` 0.5 rad/s
+    ``q_omega`` ((rad/s)^2 per s: w's random walk; 1e-5 for e6, which has nothing but the
+    ranges' progression to tell w by, 1e-6 for the others: on the thesis's recordings 1e-5
+    beats e6's former 1e-4 on four logs of five and ties on E8, below it E8 degrades, README
+    "On the thesis's own recordings"); ``var_acc`` 0.8 (eq. 6.1), ``var_gyro`` 0.005
+    (eq. 6.4), ``var_sonar`` 0.02 (while acquiring; the thesis's 0.0625 of eq. 6.3 absorbed
+    the point model's error, our surface model needs less), ``var_sonar_track`` 1e-3
+    (locked; None: always ``var_sonar``, never locked), ``var_mag`` 0.015 (eq. 6.9),
+    ``var_bilat`` 0.25 (m^2: two sonars see different points of the train, so bilateration
+    fixes are off by 10-25 cm); ``omega0`` 0.5 rad/s
     (its sign: the direction until the data tell); ``target_length``, ``target_radius`` (m,
     0: point model); ``gate`` (probability of the chi-square gate on sonar and bilateration
     blocks, None: no gate); ``max_lag`` (s); ``beams`` {sonar node: [x, y] pointing
@@ -231,7 +235,7 @@ class TrainTracker:
         self.half_length = target_length / 2.0
         self.target_radius = target_radius
         if q_omega is None:  # e6 infers omega from the sonars alone: let it follow them faster
-            q_omega = 1e-4 if rung == "e6" else 1e-6
+            q_omega = 1e-5 if rung == "e6" else 1e-6
         self.q = (q_theta, q_omega, q_radius, q_xy, q_scale)
         self.q_theta_track = q_theta if q_theta_track is None else float(q_theta_track)
         self.gate = gate
