@@ -201,9 +201,10 @@ def swap(node: Node, name: str, cls: type, timeout: float = START_TIMEOUT) -> di
     """Replace the running measure ``name`` of ``node`` by one of class ``cls`` (see the
     module docstring, step 2); ReloadError saying why when the new one does not start, in
     which case the measure runs its previous class again. Returns ``running``, ``handover``
-    (whether green took blue's state) and ``switch_ms``: ms from the deadline blue gave up
-    (for a blue switched at once or abandoned, from the hand-over) to the start of green's
-    first step; under the period, no step was lost to the reload."""
+    (whether green took blue's state) and ``switch_ms``: ms from blue giving up the step of
+    its deadline (woken for it, as late as any step may be; for a blue switched at once or
+    abandoned, from the hand-over) to the start of green's first step, in that step's place:
+    under the period, no step was lost to the reload."""
     sup = node.supervisor
     child = sup.children[name]
     decl = node.decls[name]
@@ -259,8 +260,9 @@ def swap(node: Node, name: str, cls: type, timeout: float = START_TIMEOUT) -> di
             gate.set()
         else:
             handed.wait()  # blue is handing over right now
-    # from the deadline blue gave up (retired at once: from the hand-over) to green's step
-    t_switch = blue.retired_deadline or switched[0]
+    # from blue giving up its deadline's step (retired at once: from the hand-over) to
+    # green's first step: what the reload costs, not how late the thread woke for it
+    t_switch = switched[0] if blue.retired_at is None else blue.retired_at
     while green.stats.steps < 1:
         if failed or time.monotonic() > deadline:
             break

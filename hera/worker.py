@@ -174,7 +174,10 @@ class Worker:
         self._retire_lock = threading.Lock()
         self._retiring = False
         self.retired_deadline: float | None = None
-        """The deadline (monotonic) this worker gave up to its replacement (hot reload)."""
+        """The deadline (monotonic) whose step this worker gave up to its replacement (hot
+        reload), and ``retired_at`` when it did (woken for that deadline, as late as any
+        step may be)."""
+        self.retired_at: float | None = None
         self.thread = threading.Thread(
             target=self._run, name=f"measure-{self.spec.name}-{self.id}", daemon=True
         )
@@ -355,7 +358,7 @@ class Worker:
                 k += missed
                 deadline = start + k * period
             if self._retire is not None:  # a hot reload: the new code steps at this deadline
-                self.retired_deadline = deadline
+                self.retired_deadline, self.retired_at = deadline, now
                 break
             if self._changes:
                 self._apply_changes()
@@ -405,7 +408,7 @@ class Worker:
             if self._left or self._stop.is_set() or self.abandoned or deadline < self._not_before:
                 return
             if self._retire is not None:  # a hot reload: the new code steps at this deadline
-                self.retired_deadline = deadline
+                self.retired_deadline, self.retired_at = deadline, time.monotonic()
                 self._stop.set()
                 return
             self._not_stepping.clear()

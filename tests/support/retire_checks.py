@@ -25,4 +25,4 @@ def retire_and_check(w, events: list, done: threading.Event, period: float) -> N
     # from which a reload counts its switch time
     k = round((w.retired_deadline - last_deadline) / period)
     assert k >= 1 and abs(w.retired_deadline - last_deadline - k * period) < 1e-6
-    assert w.retired_deadline <= events[-1][1]
+    assert w.retired_deadline <= w.retired_at <= events[-1][1]  # woke for it, then closed
