@@ -4,14 +4,18 @@ The thesis measured the train's "true omega" by counting laps over 60 s (ch. 6.1
 recordings of a run hold the same information more precisely: each sonar sees the train
 pass on the near side of the track once per lap (:func:`pass_times`), successive passes
 of one sonar are one lap apart, and a fit over all of them gives the lap time to a small
-fraction of a sonar period (:func:`lap_time`). The direction comes from the
-gyroscope's sign, when the run recorded one.
+fraction of a sonar period (:func:`lap_fit`). A real train's speed drifts (the thesis's
+E8 recording speeds up by 2.5 % over 88 s): when the pass times show a trend in the lap
+time beyond doubt, the fit follows it and the reference's omega changes with time; a
+constant reference would count a filter that follows the train as wrong by up to half the
+drift. The direction comes from the gyroscope's sign, when the run recorded one.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -58,13 +62,39 @@ def pass_times(
     return out
 
 
-def lap_time(passes: Sequence[Sequence[float]]) -> tuple[float, int, tuple[float, float]]:
-    """(lap time s, passes used, (first, last) pass time) from each sonar's pass times:
-    per sonar, each pass numbered by its laps since the first (a missed pass skips a
-    number; a pass too close to the previous one is dropped), t_k = c_s + T k fitted to
-    every sonar's passes at once (least squares, one offset per sonar, one lap time T: the
-    pass times' errors average out). A constant speed over the run; NaN if no sonar has
-    three passes."""
+TREND_T = 3.0
+"""The lap time's trend is followed when its fitted coefficient lies this many standard errors
+from 0 (a constant speed shows one that far by chance in about 0.3 % of runs)."""
+
+
+@dataclass(frozen=True)
+class LapFit:
+    """Pass times fitted as t = c_s + T k + a u^2 (:func:`lap_fit`): ``lap`` T (s), ``trend``
+    a (s; 0 when the speed is taken as constant), ``trend_t`` a's t statistic (NaN without
+    enough passes to tell), ``n`` passes used, ``t0`` and ``t1`` the first and last (s), and
+    ``lap0`` the constant-speed lap time that scales u = (t - t0) / lap0 (laps since t0)."""
+
+    lap: float
+    trend: float
+    trend_t: float
+    n: int
+    t0: float
+    t1: float
+    lap0: float
+
+    def lap_at(self, t: float) -> float:
+        """The lap time (s) at time t: dt/dk = T + 2 a u(t)."""
+        return self.lap + 2.0 * self.trend * (t - self.t0) / self.lap0
+
+
+def lap_fit(passes: Sequence[Sequence[float]], trend: bool = True) -> LapFit:
+    """The lap time from each sonar's pass times: per sonar, each pass numbered k by its laps
+    since the first (a missed pass skips a number; a pass too close to the previous one is
+    dropped), t_k = c_s + T k fitted to every sonar's passes at once (least squares, one
+    offset per sonar, one lap time T: the pass times' errors average out). With ``trend``,
+    t_k = c_s + T k + a u_k^2 too, u_k the pass's laps since the first pass of all (from the
+    constant fit): a lap time changing linearly, T + 2 a u; kept when a is TREND_T standard
+    errors from 0, else a = 0. NaN lap if no sonar has three passes."""
     rows, ts = [], []
     used = [np.asarray(sorted(p), dtype=float) for p in passes if len(p) >= 3]
     for j, p in enumerate(used):
@@ -76,17 +106,41 @@ def lap_time(passes: Sequence[Sequence[float]]) -> tuple[float, int, tuple[float
             row[j], row[-1] = 1.0, kk
             rows.append(row)
             ts.append(tt)
+    nan = math.nan
     if not rows:
-        return math.nan, 0, (math.nan, math.nan)
-    coef = np.linalg.lstsq(np.array(rows), np.array(ts), rcond=None)[0]
-    return float(coef[-1]), len(ts), (min(ts), max(ts))
+        return LapFit(nan, 0.0, nan, 0, nan, nan, nan)
+    A, y = np.array(rows), np.array(ts)
+    coef = np.linalg.lstsq(A, y, rcond=None)[0]
+    t0, t1, lap0 = float(y.min()), float(y.max()), float(coef[-1])
+    fit = LapFit(lap0, 0.0, nan, len(ts), t0, t1, lap0)
+    dof = len(y) - A.shape[1] - 1
+    if not trend or dof < 2 or not lap0 > 0:
+        return fit
+    u = (A @ coef - t0) / lap0
+    Aq = np.column_stack([A, u * u])
+    coef_q = np.linalg.lstsq(Aq, y, rcond=None)[0]
+    resid = y - Aq @ coef_q
+    cov = float(resid @ resid) / dof * np.linalg.pinv(Aq.T @ Aq)
+    se = math.sqrt(max(float(cov[-1, -1]), 0.0))
+    t_stat = float(coef_q[-1]) / se if se > 0 else nan
+    if not abs(t_stat) >= TREND_T:
+        return LapFit(lap0, 0.0, t_stat, len(ts), t0, t1, lap0)
+    return LapFit(float(coef_q[-2]), float(coef_q[-1]), t_stat, len(ts), t0, t1, lap0)
+
+
+def lap_time(passes: Sequence[Sequence[float]]) -> tuple[float, int, tuple[float, float]]:
+    """(lap time s, passes used, (first, last) pass time) of :func:`lap_fit` at a constant
+    speed over the run; NaN if no sonar has three passes."""
+    f = lap_fit(passes, trend=False)
+    return f.lap, f.n, (f.t0, f.t1)
 
 
 def lap_reference(recordings: Sequence[Path]) -> Reference | None:
     """The reference of a run from its sonar recordings (the first folder that has some):
-    a constant omega between the first and the last timed pass (:func:`lap_time`), signed
-    by the gyroscope (the ``nav`` recording's second column) when there is one; None when
-    no sonar has three passes."""
+    omega between the first and the last timed pass from :func:`lap_fit` (constant, or
+    following the lap time's trend when the passes show one), signed by the gyroscope (the
+    ``nav`` recording's second column) when there is one; None when no sonar has three
+    passes."""
     for folder in recordings:
         try:
             sonar = read_recordings(folder, ["sonar"])
@@ -95,9 +149,9 @@ def lap_reference(recordings: Sequence[Path]) -> Reference | None:
         by_node: dict[str, list[Sample]] = {}
         for s in sonar:
             by_node.setdefault(s.node, []).append(s)
-        passes = [pass_times(v) for _, v in sorted(by_node.items())]
-        lap, n, (t0, t1) = lap_time(passes)
-        if not n >= 3 or not lap > 0:
+        fit = lap_fit([pass_times(v) for _, v in sorted(by_node.items())])
+        n, t0, t1 = fit.n, fit.t0, fit.t1
+        if not n >= 3 or not (fit.lap > 0 and fit.lap_at(t0) > 0 and fit.lap_at(t1) > 0):
             continue
         sign, signed_by = 1.0, "assumed counter-clockwise (no gyroscope recorded)"
         try:
@@ -107,15 +161,24 @@ def lap_reference(recordings: Sequence[Path]) -> Reference | None:
         if g:
             sign = 1.0 if float(np.mean(g)) >= 0 else -1.0
             signed_by = "signed by the gyroscope"
-        w = sign * 2 * math.pi / lap
 
-        def at(t: float, w=w, t0=t0, t1=t1) -> dict[str, float]:
-            return {OMEGA: w} if t0 <= t <= t1 else {}
+        def at(t: float, fit=fit, sign=sign) -> dict[str, float]:
+            if not fit.t0 <= t <= fit.t1:
+                return {}
+            return {OMEGA: sign * 2 * math.pi / fit.lap_at(t)}
 
+        w0, w1 = sign * 2 * math.pi / fit.lap_at(t0), sign * 2 * math.pi / fit.lap_at(t1)
+        laps = (t1 - t0) / fit.lap0
+        if fit.trend:
+            what = (
+                f"omega {w0:.4f} -> {w1:.4f} rad/s ({(w1 / w0 - 1) * 100:+.1f} %: the lap "
+                f"time's trend, {abs(fit.trend_t):.1f} standard errors from 0)"
+            )
+        else:
+            what = f"omega {w0:.4f} rad/s"
         source = (
-            f"self-consistency (no simulated truth): omega {w:.4f} rad/s from lap timing of "
-            f"{n} sonar passes over {t1 - t0:.0f} s ({(t1 - t0) / lap:.1f} laps), "
-            f"{signed_by}; omega only"
+            f"self-consistency (no simulated truth): {what} from lap timing of {n} sonar "
+            f"passes over {t1 - t0:.0f} s ({laps:.1f} laps), {signed_by}; omega only"
         )
         return Reference(FunctionTruth((OMEGA,), at), source)
     return None

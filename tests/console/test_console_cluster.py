@@ -399,9 +399,10 @@ def test_reload_swaps_the_model_without_a_gap_and_rolls_back_bad_code(train):
         assert out.returncode == 0, out.stdout + out.stderr
         # the reload's own cost, measured by the node on its monotonic clock: from the old
         # code giving up its deadline's step to the new code's first step in its place.
-        # Under a period, no step was lost to it. (The gap between the estimates' times around the reload is
-        # printed, not asserted: it is the samples' own jitter, which a load spike on the
-        # 2 cores makes as long as it likes at any moment, the reload's or not.)
+        # Under a period, no step was lost to it. (The gap between the estimates' times
+        # around the reload is printed, not asserted: it is the samples' own jitter, which
+        # a load spike on the 2 cores makes as long as it likes at any moment, the
+        # reload's or not.)
         for node in ("computer", "nav_1"):
             m = re.search(
                 rf"{node}: reloaded .*reload_model.*gyro_v \(state handed over, switched in "
