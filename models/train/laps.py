@@ -128,13 +128,6 @@ def lap_fit(passes: Sequence[Sequence[float]], trend: bool = True) -> LapFit:
     return LapFit(float(coef_q[-2]), float(coef_q[-1]), t_stat, len(ts), t0, t1, lap0)
 
 
-def lap_time(passes: Sequence[Sequence[float]]) -> tuple[float, int, tuple[float, float]]:
-    """(lap time s, passes used, (first, last) pass time) of :func:`lap_fit` at a constant
-    speed over the run; NaN if no sonar has three passes."""
-    f = lap_fit(passes, trend=False)
-    return f.lap, f.n, (f.t0, f.t1)
-
-
 def lap_reference(recordings: Sequence[Path]) -> Reference | None:
     """The reference of a run from its sonar recordings (the first folder that has some):
     omega between the first and the last timed pass from :func:`lap_fit` (constant, or

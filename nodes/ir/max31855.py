@@ -22,10 +22,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from hera import wallclock
 from hera.nodes.driver import BoardDisconnected
 from hera.nodes.driver_args import checked_args
-from hera.nodes.ir.driver import TemperatureSample
+from hera.nodes.ir.driver import ThermocoupleDriverBase
 from hera.nodes.spi import Opener, SpiLink, path_problems, speed_problems
 
 FAULT, RESERVED = 1 << 16, (1 << 17) | (1 << 3)
@@ -49,7 +48,7 @@ def decode(frame: int) -> tuple[float, float]:
 
 
 @checked_args
-class Max31855:
+class Max31855(ThermocoupleDriverBase):
     """A thermocouple behind a MAX31855 (see the module docstring). ``spi`` opens the device
     (default ``periphery.SPI``; see :data:`hera.nodes.spi.Opener`)."""
 
@@ -85,11 +84,6 @@ class Max31855:
         hot, self.junction = decode(frame)
         self.reads += 1
         return hot
-
-    def read_sample(self) -> TemperatureSample:
-        """Read once: the temperature (degC), stamped when it was read."""
-        t = wallclock.now()
-        return TemperatureSample(t, self.read_celsius())
 
     def describe(self) -> dict[str, Any]:
         """JSON-able status for the ``board`` verb's listing."""

@@ -30,10 +30,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from hera import wallclock
 from hera.nodes.driver import BoardDisconnected
 from hera.nodes.driver_args import checked_args
-from hera.nodes.ir.driver import VoltageSample
+from hera.nodes.ir.driver import IrDriverBase
 from hera.nodes.spi import Opener, SpiLink, path_problems, speed_problems
 
 CODES = 1024
@@ -49,7 +48,7 @@ MAX_SPEED_HZ = 3_600_000
 
 
 @checked_args
-class Mcp3008Ir:
+class Mcp3008Ir(IrDriverBase):
     """A Sharp IR sensor on one channel of an MCP3008 (see the module docstring). ``spi``
     opens the device (default ``periphery.SPI``; see :data:`hera.nodes.spi.Opener`)."""
 
@@ -89,11 +88,6 @@ class Mcp3008Ir:
             )
         self.reads += 1
         return ((high & 0x03) << 8 | low) * self.vref / CODES
-
-    def read_sample(self) -> VoltageSample:
-        """Convert once: the output (V), stamped when the conversion was asked for."""
-        t = wallclock.now()
-        return VoltageSample(t, self.read_volts())
 
     def describe(self) -> dict[str, Any]:
         """JSON-able status for the ``board`` verb's listing."""
