@@ -9,7 +9,10 @@ a case hits both sides of each comparison alike; the garbage collector is paused
 timing, as ``timeit`` does. Our timed step includes building the observation block, as
 a fusion model does. The target is judged on ``predict(dt)`` then ``update(obs)``; the
 ``step`` columns time ``step(dt, obs)`` (the same two in one call, fused into one kernel
-for the KF and EKF), paired with FilterPy the same way, for information. The estimation
+for the KF and EKF), paired with FilterPy the same way, for information. The EKF's
+``compiled`` columns time the same model written as numba functions
+(:mod:`hera.bench.kalman_compiled`) in ``CompiledExtendedKalmanFilter.fuse(dt, z)``, one
+compiled call a step, against FilterPy with the Python functions it takes. The estimation
 backend (numba or numpy) is printed; its one-off compile / cache-load time is measured
 first and reported separately (warm-up steps then run before any timing).
 """
@@ -242,8 +245,11 @@ def _filterpy(kind: str, md: _Model) -> Callable[[np.ndarray], None]:
     return step
 
 
-def run(steps: int, kinds: list[str], sizes: list[int], dims: list[int]) -> list[dict]:
-    """Measure every case; returns rows with the medians in microseconds."""
+def run(
+    steps: int, kinds: list[str], sizes: list[int], dims: list[int], compiled: bool = False
+) -> list[dict]:
+    """Measure every case; returns rows with the medians in microseconds (``compiled``: the
+    EKF rows also time the compiled model, numba backend only)."""
     rows = []
     warmup = max(5, steps // 10)
     for kind in kinds:
@@ -257,26 +263,31 @@ def run(steps: int, kinds: list[str], sizes: list[int], dims: list[int]) -> list
                 fused, _, step_ratio = _alternating_medians(
                     _ours_step(kind, md), _filterpy(kind, md), zs, warmup
                 )
-                rows.append(
-                    {
-                        "filter": kind,
-                        "n": n,
-                        "m": m,
-                        "ours_us": ours,
-                        "filterpy_us": theirs,
-                        "ratio": ratio,
-                        "step_us": fused,
-                        "step_ratio": step_ratio,
-                    }
-                )
+                row = {
+                    "filter": kind,
+                    "n": n,
+                    "m": m,
+                    "ours_us": ours,
+                    "filterpy_us": theirs,
+                    "ratio": ratio,
+                    "step_us": fused,
+                    "step_ratio": step_ratio,
+                }
+                if kind == "EKF" and compiled:
+                    from . import kalman_compiled
+
+                    row["compiled_us"], _, row["compiled_ratio"] = _alternating_medians(
+                        kalman_compiled.stepper(md), _filterpy(kind, md), zs, warmup
+                    )
+                rows.append(row)
     return rows
 
 
 def format_table(rows: list[dict]) -> str:
     lines = [
         f"{'filter':<6} {'n':>2} {'m':>2} {'ours us':>9} {'filterpy us':>12} {'ratio':>7}  "
-        f"{'target':<15} {'step us':>8} {'step ratio':>10}",
-        "-" * 80,
+        f"{'target':<15} {'step us':>8} {'step ratio':>10} {'compiled us':>11} {'ratio':>6}",
+        "-" * 99,
     ]
     for r in rows:
         ratio = r["ratio"]
@@ -285,6 +296,8 @@ def format_table(rows: list[dict]) -> str:
         step = ""
         if "step_us" in r:
             step = f" {r['step_us']:>8.1f} {r['step_ratio']:>10.2f}"
+        if "compiled_us" in r:
+            step += f" {r['compiled_us']:>11.1f} {r['compiled_ratio']:>6.2f}"
         lines.append(
             f"{r['filter']:<6} {r['n']:>2} {r['m']:>2} {r['ours_us']:>9.1f} "
             f"{r['filterpy_us']:>12.1f} {ratio:>7.2f}  {ok + f' (>= {target:g}x)':<15}{step}"
@@ -353,11 +366,23 @@ def main(argv: list[str] | None = None) -> int:
         + (f"{loaded:.0f} MB RSS" if loaded is not None else "(probe failed)")
         + f"; this one {rss_mb() or 0:.0f} MB (more if it compiled the kernels)"
     )
-    rows = run(steps, kinds, [2, 4, 9], [1, 2, 3])
+    dims = [1, 2, 3]
+    compiled = name == "numba" and "EKF" in kinds
+    if compiled:
+        from . import kalman_compiled
+
+        t1 = time.perf_counter()
+        where = kalman_compiled.prepare(dims)
+        print(
+            f"compiled EKF models (m = 1-3): compiled or loaded in {time.perf_counter() - t1:.2f} s"
+            f", {where}"
+        )
+    rows = run(steps, kinds, [2, 4, 9], dims, compiled)
     print(
         f"Kalman filter step (predict + update), median of {steps} steps per case; ratio: "
         f"FilterPy / ours, median over turns of {CHUNK} steps each; step: the same with "
-        "step(dt, obs) (information, not the target)"
+        "step(dt, obs) (information, not the target); compiled: the EKF's model as numba "
+        "functions, CompiledExtendedKalmanFilter.fuse(dt, z)"
     )
     print(format_table(rows))
     met = sum(r["ratio"] >= TARGETS[r["filter"]] for r in rows)
@@ -366,6 +391,14 @@ def main(argv: list[str] | None = None) -> int:
         f"{met} of {len(rows)} cases meet their target (EKF {TARGETS['EKF']:g}x, else "
         f"{TARGET:g}x); {at3} of {len(rows)} are >= {TARGET:g}x"
     )
+    fast = [r["compiled_ratio"] for r in rows if "compiled_ratio" in r]
+    if fast:
+        print(
+            f"with a compiled model (CompiledExtendedKalmanFilter.fuse) the EKF is at "
+            f"{min(fast):.2f}-{max(fast):.2f}x FilterPy, "
+            f"{sum(v >= TARGETS['EKF'] for v in fast)} of {len(fast)} cases >= "
+            f"{TARGETS['EKF']:g}x"
+        )
     print(f"total {time.perf_counter() - t0:.1f} s")
     return 0
 

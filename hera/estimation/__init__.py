@@ -22,6 +22,7 @@ else numpy; ``HERA_ESTIMATION_BACKEND=numpy|numba|auto`` or ``set_backend`` choo
 
 from . import backend
 from .backend import active_backend, set_backend, warmup
+from .compiled import CompiledExtendedKalmanFilter, CompiledModel, compile_model
 from .correction import linearised_update
 from .ekf import ExtendedKalmanFilter
 from .gating import chi2_cdf, chi2_ppf, chi2_sf, gate_threshold
@@ -58,6 +59,9 @@ from .state import NoiseRate
 from .ukf import MerweSigmaPoints, UnscentedKalmanFilter
 
 __all__ = [
+    "CompiledExtendedKalmanFilter",
+    "CompiledModel",
+    "compile_model",
     "active_backend",
     "backend",
     "set_backend",

@@ -85,6 +85,14 @@ class ExtendedKalmanFilter(LinearisedFilter):
         self._dt: float | None = None
         self._Qdt: np.ndarray | None = None
 
+    def _Q_at(self, dt: float) -> np.ndarray:
+        """Q(dt) of a process noise given as a function, checked, and kept for the next
+        call with the same dt when ``cache_dt`` (as ``predict`` does, written out there)."""
+        if dt != self._dt or self._Qdt is None or not self.cache_dt:
+            self._Qdt = process_noise(self._Q(dt), self.n, "Q(dt)")
+            self._dt = dt
+        return self._Qdt
+
     def predict(self, dt: float, u: Any = None, *, Q: Any = None) -> None:
         """Propagate by dt seconds (>= 0; seed 003 eq. 7). ``Q`` overrides the process noise
         for this call (checked as at construction). The state is unchanged on error."""

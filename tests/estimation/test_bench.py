@@ -15,6 +15,12 @@ def test_bench_runs_tiny(capsys):
     assert "filterpy us" in out and "ratio" in out
     for kind in ("KF", "EKF", "UKF"):
         assert sum(line.startswith(kind + " ") for line in out.splitlines()) == 9
+    # the EKF rows add the compiled model's two columns (time and ratio) on numba
+    widths = {len(line.split()) for line in out.splitlines() if line.startswith(("KF ", "UKF "))}
+    ekf = {len(line.split()) for line in out.splitlines() if line.startswith("EKF ")}
+    assert ekf == {w + 2 for w in widths}, out
+    assert re.search(r"the EKF is at [\d.]+-[\d.]+x FilterPy, \d of 9 cases >= 4x", out), out
+    assert re.search(r"compiled EKF models \(m = 1-3\): compiled or loaded in [\d.]+ s", out)
     # the memory a node pays, read off a fresh process that ran every filter
     loaded = re.search(r"a process that runs these filters (\d+) MB RSS; this one (\d+) MB", out)
     assert loaded, out
