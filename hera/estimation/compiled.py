@@ -23,13 +23,13 @@ and the same errors (it hands anything unusual to ``step``, which diagnoses it).
 
 Cached: when the four functions are importable (defined at the top level of a module that
 is not ``__main__``), the step is written as a small module into the estimation cache
-(:func:`hera.estimation.backend.cache_dir`, ``models/``), named by a hash of the functions'
-source and of the kernels', and numba caches its machine code there: the next process loads
-it in a fraction of a second. Otherwise (functions defined in a script or a function) the
-step compiles in every process (about 3 s on a 2-vCPU machine, the kernels themselves
-loaded from their cache). As with any numba cache, a change of a global the model
-functions read (an array they close over) is not seen: change the source, or clear
-``models/``.
+(:func:`hera.estimation.backend.cache_dir`, ``models/``), named by a hash of the source files
+that hold the functions and of the kernels', and numba caches its machine code there: the
+next process loads it in a fraction of a second. Otherwise (functions defined in a script
+or a function) the step compiles in every process (about 3 s on a 2-vCPU machine, the
+kernels themselves loaded from their cache). As with numba's own cache, a change in another
+file the model functions call into, or of a global they read (an array defined at import),
+is not seen: clear ``models/`` then.
 """
 
 from __future__ import annotations
@@ -112,14 +112,15 @@ def _importable(fn: Any) -> tuple[str, str] | None:
 
 
 def _source_hash(fns: dict[str, Any], kernels_file: str) -> str | None:
-    """A hash of the functions' source, names and the kernels' source, numba and Python
-    versions; None when a source cannot be read."""
+    """A hash of the functions' names, the whole source file of each (so a helper they call
+    from the same file counts, as numba's own cache sees it), the kernels' source, and the
+    numba and Python versions; None when a source file cannot be read."""
     h = hashlib.sha256()
     try:
         for role in _ROLES:
             py = fns[role].py_func
             h.update(f"{role} {py.__module__} {py.__qualname__}\n".encode())
-            h.update(inspect.getsource(py).encode())
+            h.update(Path(inspect.getsourcefile(py) or "").read_bytes())
         h.update(Path(kernels_file).read_bytes())
     except (OSError, TypeError):
         return None

@@ -198,38 +198,31 @@ def test_the_step_is_cached_and_a_changed_model_compiles_anew(tmp_path):
                 f.unlink()
 
 
-def test_functions_of_a_script_work_uncached(use):
-    """Functions that a fresh process cannot import (defined inside a function) compile in
-    this process, uncached, with the same numbers."""
+def _readme_example() -> str:
+    """The README's compiled-model example (estimation library, "A compiled model")."""
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    start = readme.index("import numba, numpy as np\nfrom hera.estimation import Compiled")
+    return readme[start : readme.index("```", start)]
+
+
+def test_the_readmes_example_runs_uncached_with_the_ordinary_steps_numbers(use):
+    """The README's example, run as a script runs it: its functions cannot be imported by
+    a fresh process, so the step compiles in this one, uncached, with the same numbers."""
     use("numba")
-
-    @numba.njit
-    def f(x, dt, u):
-        return x * (1.0 - dt)
-
-    @numba.njit
-    def F(x, dt, u):
-        return np.eye(x.shape[0]) * (1.0 - dt)
-
-    @numba.njit
-    def h(x):
-        return x[:1] ** 3
-
-    @numba.njit
-    def H(x):
-        J = np.zeros((1, x.shape[0]))
-        J[0, 0] = 3.0 * x[0] ** 2
-        return J
-
-    model = compile_model(f, F, h, H)
+    ns: dict = {"__name__": "readme_example", "dt": 0.1, "r": 2.05, "a": 0.2}
+    exec(compile(_readme_example(), "README.md", "exec"), ns)
+    model, ekf = ns["model"], ns["ekf"]
     assert not model.cached and model.path is None
-    fast = CompiledExtendedKalmanFilter(np.ones(2), np.eye(2), model, 0.01, 0.1)
-    plain = ExtendedKalmanFilter(np.ones(2), np.eye(2), f=f, F=F, Q=0.01)
+    assert ns["result"].updated and ekf.x[0] > 0.0  # the range says: off the start
+    plain = ExtendedKalmanFilter([0.0, 1.0], np.eye(2), f=ns["f"], F=ns["F"], Q=1e-3, gate=0.999)
+    fast = CompiledExtendedKalmanFilter([0.0, 1.0], np.eye(2), model, Q=1e-3, R=0.01, gate=0.999)
     for k in range(20):
-        z = [1.0 + 0.01 * k]
-        a = fast.fuse(0.1, z)
-        assert a == plain.step(0.1, Observations().add("z", z, h=h, jacobian=H, R=0.1), EMPTY1)
+        z, u = [2.0 + 0.02 * k * k], [0.1 * (k % 3)]
+        a = fast.fuse(0.1, z, u=u)
+        obs = Observations().add("z", z, h=ns["h"], jacobian=ns["H"], R=0.01)
+        assert a == plain.step(0.1, obs, np.asarray(u, float))
         np.testing.assert_allclose(fast.x, plain.x, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(fast.P, plain.P, rtol=0, atol=1e-12)
 
 
 def test_history_and_the_ordinary_calls_still_work(pendulum, use):
