@@ -100,7 +100,7 @@ def prepare(dims: list[int]) -> str:
         md = np.zeros(1), np.eye(1)
         ekf = CompiledExtendedKalmanFilter(*md, model(m), Q=0.0, R=np.ones(m))
         ekf.fuse(0.1, np.zeros(m))
-    paths = {str(model(m).path.parent) for m in dims if model(m).path is not None}
+    paths = {str(p.parent) for m in dims for p in model(m).paths.values() if p is not None}
     return f"cached in {', '.join(sorted(paths))}" if paths else "not cached"
 
 

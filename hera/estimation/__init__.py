@@ -17,7 +17,9 @@ y, S, K and the log-likelihood.
 
 Backends: with numba installed (``hera-fusion[fast]``) the hot path runs compiled kernels,
 else numpy; ``HERA_ESTIMATION_BACKEND=numpy|numba|auto`` or ``set_backend`` chooses,
-``active_backend()`` tells, ``warmup()`` compiles/loads the kernels up front.
+``active_backend()`` tells, ``warmup()`` compiles/loads the kernels up front. A model
+written as numba functions runs its whole EKF step in one compiled call:
+``CompiledExtendedKalmanFilter(x0, P0, compile_model(f, F, h, H), Q, R).fuse(dt, z)``.
 """
 
 from . import backend

@@ -14,7 +14,11 @@ The model functions, all ``numba.njit``, on float64 arrays:
   the caller gives no control input);
 * ``F(x, dt, u) -> (n, n)``: its Jacobian at x;
 * ``h(x) -> (m,)``: the measurement model;
-* ``H(x) -> (m, n)``: its Jacobian at x.
+* ``H(x) -> (m, n)``: its Jacobian at x;
+
+or several measurements (one per sensor), each its own h and H by name
+(``compile_model(f, F, measurements={"gyro": (h_gyro, H_gyro), "sonar": (h_s, H_s)})``):
+a step is compiled for each, and ``fuse(dt, z, sensor="sonar")`` fuses a sample of one.
 
 The same functions serve the filter's ordinary ``predict``/``update``/``step`` (numba
 functions are callable from Python), so everything the EKF offers still works; ``fuse``
@@ -154,87 +158,159 @@ def _vector(v: Any) -> np.ndarray:
     return np.array(v, dtype=_F64).reshape(-1)
 
 
-class CompiledModel:
-    """The four model functions and the compiled step that calls them (see the module
-    docstring). Build it once and give it to any number of filters. ``cached`` says whether
-    the step's machine code is kept in the cache (``path``: its module file)."""
+def _compile_step(fns: dict[str, Any], kernels: Any) -> tuple[Any, Path | None]:
+    """The compiled step of f, F, h and H (``fns``, by role) and the module file it is kept
+    in, or None when it is not cached (functions a fresh process cannot import, or a cache
+    that cannot be written)."""
+    where = [_importable(fn) for fn in fns.values()]
+    digest = _source_hash(fns, kernels._mod.__file__) if all(where) else None
+    what = "\n".join(
+        f"    {r} = {fn.py_func.__module__}.{fn.py_func.__qualname__}" for r, fn in fns.items()
+    )
+    if digest is not None:
+        bind = "\n".join(
+            f"from {mod} import {name} as {role}"
+            for role, (mod, name) in zip(_ROLES, where, strict=True)  # type: ignore[misc]
+        )
+        folder = kernels.cache / "models"
+        path = folder / f"ekf_step_{digest}.py"
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            if not path.exists():
+                _write_atomically(path, _SOURCE.format(what=what, bind=bind, cache=True))
+            return _load_file(path, digest, kernels.cache), path
+        except OSError:  # a read-only cache: compiled in this process below
+            pass
+    module = types.ModuleType("hera_compiled_ekf_step")
+    module.__dict__.update(fns)
+    source = _SOURCE.format(what=what, bind="", cache=False)
+    exec(compile(source, "<hera compiled EKF step>", "exec"), module.__dict__)
+    return module.step, None
 
-    def __init__(self, f: Any, F: Any, h: Any, H: Any) -> None:
+
+def _load_file(path: Path, digest: str, cache: Path) -> Any:
+    """The ``step`` of the generated module file ``path``, its machine code cached by numba
+    in ``cache``."""
+    name = f"hera_compiled_ekf_step_{digest}"
+    spec = importlib.util.spec_from_file_location(name, path)
+    if spec is None or spec.loader is None:
+        raise OSError(f"cannot load {path}")
+    module = importlib.util.module_from_spec(spec)
+    with _bk._numba_cache_dir(cache):  # numba picks the cache location at decoration
+        spec.loader.exec_module(module)
+    sys.modules[name] = module
+    return module.step
+
+
+def _check_return(role: str, value: Any, shape: tuple[int, ...] | None) -> tuple[int, ...]:
+    """The shape of a model function's value at x0, checked to be a float64 array of
+    ``shape`` (None: any 1-D one); TypeError naming the function and what it gave."""
+    want = "a 1-D float64 array" if shape is None else f"a float64 array of shape {shape}"
+    if type(value) is not _ND:
+        raise TypeError(
+            f"compiled model: {role} returned a value of type {type(value).__name__}, "
+            f"expected {want}"
+        )
+    if value.dtype != _F64 or (value.ndim != 1 if shape is None else value.shape != shape):
+        raise TypeError(
+            f"compiled model: {role} returned an array of {value.dtype} with shape "
+            f"{value.shape}, expected {want}"
+        )
+    return value.shape
+
+
+def _numba_reason(e: Exception) -> str:
+    """The line of a numba typing error that says what failed (the call, the operation),
+    without its list of known signatures and its compiler trace."""
+    lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
+    keep = [
+        ln
+        for ln in lines
+        if not ln.startswith(("Failed in", "During:", "File ", "*", "Known signatures"))
+    ]
+    reason = keep[0] if keep else type(e).__name__
+    return reason if len(reason) <= 300 else reason[:297] + "..."
+
+
+class CompiledModel:
+    """The process functions f and F, the named measurements (h, H) and one compiled step
+    per measurement (see the module docstring). Build it once and give it to any number of
+    filters. ``measurements``: name -> (h, H); ``steps``: name -> the compiled step;
+    ``paths``: name -> its module file in the cache, or None; ``cached``: every step is."""
+
+    def __init__(self, f: Any, F: Any, measurements: dict[str, tuple[Any, Any]]) -> None:
         kernels = _bk.active_kernels()
         if kernels is None:
             raise RuntimeError(
                 "a compiled model needs the numba backend, and the numpy one is active "
                 "(numba not installed, or HERA_ESTIMATION_BACKEND=numpy)"
             )
-        fns = {"f": f, "F": F, "h": h, "H": H}
-        for role, fn in fns.items():
+        if not measurements:
+            raise ValueError("compiled model: give h and H, or measurements={name: (h, H)}")
+        named = {"f": f, "F": F}
+        for name, pair in measurements.items():
+            if not (isinstance(pair, tuple) and len(pair) == 2):
+                raise TypeError(
+                    f"compiled model: measurement {name!r} must be a pair (h, H), got "
+                    f"{type(pair).__name__}"
+                )
+            label = "" if len(measurements) == 1 else f" of measurement {name!r}"
+            named[f"h{label}"], named[f"H{label}"] = pair
+        for role, fn in named.items():
             if not _is_numba_function(fn):
                 raise TypeError(
                     f"compiled model: {role} must be a numba.njit function, got "
                     f"{type(fn).__name__} {getattr(fn, '__name__', fn)!r}"
                 )
-        self.f, self.F, self.h, self.H = f, F, h, H
-        where = [_importable(fn) for fn in fns.values()]
-        digest = _source_hash(fns, kernels._mod.__file__) if all(where) else None
-        what = "\n".join(
-            f"    {r} = {fn.py_func.__module__}.{fn.py_func.__qualname__}" for r, fn in fns.items()
-        )
-        self.path: Path | None = None
-        if digest is not None:
-            bind = "\n".join(
-                f"from {mod} import {name} as {role}"
-                for role, (mod, name) in zip(_ROLES, where, strict=True)  # type: ignore[misc]
-            )
-            source = _SOURCE.format(what=what, bind=bind, cache=True)
-            folder = kernels.cache / "models"
-            path = folder / f"ekf_step_{digest}.py"
-            try:
-                folder.mkdir(parents=True, exist_ok=True)
-                if not path.exists():
-                    _write_atomically(path, source)
-                self.step = self._load_file(path, digest, kernels.cache)
-                self.path = path
-            except OSError:  # a read-only cache: compile in this process
-                self.path = None
-        if self.path is None:
-            source = _SOURCE.format(what=what, bind="", cache=False)
-            module = types.ModuleType("hera_compiled_ekf_step")
-            module.__dict__.update(fns)
-            exec(compile(source, "<hera compiled EKF step>", "exec"), module.__dict__)
-            self.step = module.step
-        self.cached = self.path is not None
-
-    @staticmethod
-    def _load_file(path: Path, digest: str, cache: Path) -> Any:
-        name = f"hera_compiled_ekf_step_{digest}"
-        spec = importlib.util.spec_from_file_location(name, path)
-        if spec is None or spec.loader is None:
-            raise OSError(f"cannot load {path}")
-        module = importlib.util.module_from_spec(spec)
-        with _bk._numba_cache_dir(cache):  # numba picks the cache location at decoration
-            spec.loader.exec_module(module)
-        sys.modules[name] = module
-        return module.step
+        self.f, self.F = f, F
+        self.measurements = dict(measurements)
+        self.steps: dict[str, Any] = {}
+        self.paths: dict[str, Path | None] = {}
+        for name, (h, H) in self.measurements.items():
+            fns = {"f": f, "F": F, "h": h, "H": H}
+            self.steps[name], self.paths[name] = _compile_step(fns, kernels)
+        self.cached = all(p is not None for p in self.paths.values())
 
 
-def compile_model(f: Any, F: Any, h: Any, H: Any) -> CompiledModel:
-    """The compiled EKF step of the numba functions f(x, dt, u), F(x, dt, u), h(x) and
-    H(x) (see the module docstring). RuntimeError on the numpy backend, TypeError naming a
-    function that is not a numba function. The step compiles on first use (``fuse``, or a
-    filter's construction, which runs it once)."""
-    return CompiledModel(f, F, h, H)
+def compile_model(
+    f: Any,
+    F: Any,
+    h: Any = None,
+    H: Any = None,
+    *,
+    measurements: dict[str, tuple[Any, Any]] | None = None,
+) -> CompiledModel:
+    """The compiled EKF steps of the numba functions f(x, dt, u) and F(x, dt, u) with one
+    measurement, h(x) and H(x) (named "z"), or several, ``measurements={name: (h, H)}`` (one
+    step each: a sample of any of them is fused in one call). See the module docstring.
+    RuntimeError on the numpy backend, TypeError naming a function that is not a numba
+    function. The steps compile on first use (a filter's construction runs each once)."""
+    if measurements is None:
+        measurements = {"z": (h, H)}
+    elif h is not None or H is not None:
+        raise ValueError("compiled model: give h and H, or measurements={name: (h, H)}, not both")
+    return CompiledModel(f, F, measurements)
+
+
+class _Sensor:
+    """What ``fuse`` needs of one measurement: its step, size, noise and kernel flags."""
+
+    __slots__ = ("H", "R", "flags", "h", "m", "name", "noise", "step")
 
 
 class CompiledExtendedKalmanFilter(ExtendedKalmanFilter):
-    """An :class:`~hera.estimation.ExtendedKalmanFilter` of a :class:`CompiledModel` with
-    one measurement: ``fuse(dt, z, u)`` predicts by dt and fuses z in one compiled call.
+    """An :class:`~hera.estimation.ExtendedKalmanFilter` of a :class:`CompiledModel`:
+    ``fuse(dt, z, u, sensor=name)`` predicts by dt and fuses a sample z of measurement
+    ``name`` in one compiled call (``sensor`` may be left out when the model has one).
 
-    ``R``: the measurement noise (a scalar means R I, a vector the variances, or an (m, m)
-    covariance; checked as an observation block's); ``label``: the block's name in results.
-    ``Q``, ``joseph``, ``gate``, ``cache_dt`` as for the EKF. The step is compiled (or
-    loaded from the cache) here, by one step from a copy of (x0, P0): a model that does
-    not compile for this state raises TypeError with numba's account. The ordinary
-    ``predict``, ``update`` and ``step`` take ``u`` as ``fuse`` does (None means no input).
+    ``R``: the measurement noise, for one measurement a scalar (R I), a vector (the
+    variances) or an (m, m) covariance, checked as an observation block's; for several a
+    dict name -> noise with every measurement. ``Q``, ``joseph``, ``gate``, ``cache_dt`` as
+    for the EKF. Each step is compiled (or loaded from the cache) here, by one step from a
+    copy of (x0, P0): a model that does not compile for this state raises TypeError with
+    numba's account. The ordinary ``predict``, ``update`` and ``step`` take ``u`` as
+    ``fuse`` does (None means no input), and ``block(z, sensor)`` is the observation block
+    they take for a sample.
     """
 
     def __init__(
@@ -245,7 +321,6 @@ class CompiledExtendedKalmanFilter(ExtendedKalmanFilter):
         Q: Any,
         R: Any,
         *,
-        label: str = "z",
         joseph: bool = True,
         gate: float | None = None,
         cache_dt: bool = True,
@@ -259,46 +334,94 @@ class CompiledExtendedKalmanFilter(ExtendedKalmanFilter):
             x0, P0, f=model.f, Q=Q, F=model.F, joseph=joseph, gate=gate, cache_dt=cache_dt
         )
         self.model = model
-        self.label = label
-        self._step = model.step
-        hx = np.asarray(model.h(self._x), dtype=_F64).reshape(-1)
-        self.m = hx.shape[0]
+        self._sensors: dict[str, _Sensor] = {}
+        n = self.n
+        _check_return("f", model.f(self._x.copy(), 0.0, EMPTY1), (n,))
+        _check_return("F", model.F(self._x.copy(), 0.0, EMPTY1), (n, n))
+        for name, (h, H) in model.measurements.items():
+            s = _Sensor()
+            s.name, s.h, s.H, s.step = name, h, H, model.steps[name]
+            of = "" if len(model.measurements) == 1 else f" of measurement {name!r}"
+            s.m = _check_return(f"h{of}", h(self._x.copy()), None)[0]
+            _check_return(f"H{of}", H(self._x.copy()), (s.m, n))
+            self._sensors[name] = s
+        self._only = next(iter(self._sensors.values())) if len(self._sensors) == 1 else None
         self.R = R
-        self._compile()
+        for name in self._sensors:
+            self._compile(name)
 
     @property
-    def R(self) -> np.ndarray:
-        """The measurement noise: the variances (m,) or the (m, m) covariance."""
-        return self._R
+    def R(self) -> dict[str, np.ndarray]:
+        """The measurement noise by measurement name: the variances (m,) or the (m, m)
+        covariance."""
+        return {name: s.R for name, s in self._sensors.items()}
 
     @R.setter
     def R(self, R: Any) -> None:
-        b = Block(self.label, np.zeros(self.m), R, h=self.model.h, jacobian=self.model.H)
-        self._R = b.var if b.var is not None else b.R
-        self._noise = b.noise
-        self._kflags = b.kflags | _MODE_HX
+        names = list(self._sensors)
+        if not isinstance(R, dict):
+            if len(names) > 1:
+                raise ValueError(
+                    f"R: the model has {len(names)} measurements ({', '.join(names)}): give "
+                    "a dict of their noises"
+                )
+            R = {names[0]: R}
+        unknown = [k for k in R if k not in self._sensors]
+        if unknown:
+            raise ValueError(
+                f"R: {unknown[0]!r} is not a measurement of the model ({', '.join(names)})"
+            )
+        missing = [k for k in names if k not in R]
+        if missing:
+            raise ValueError(f"R: no noise given for measurement {missing[0]!r}")
+        blocks = {
+            k: Block(k, np.zeros(s.m), R[k], h=s.h, jacobian=s.H) for k, s in self._sensors.items()
+        }
+        for name, b in blocks.items():  # every noise checked before any is kept
+            s = self._sensors[name]
+            s.R = b.var if b.var is not None else b.R
+            s.noise = b.noise
+            s.flags = b.kflags | _MODE_HX
 
-    def _compile(self) -> None:
+    def _sensor(self, sensor: str | None) -> _Sensor:
+        """The measurement named ``sensor`` (None: the model's only one); ValueError naming
+        the choices otherwise."""
+        if sensor is None:
+            if self._only is not None:
+                return self._only
+            raise ValueError(
+                f"fuse: the model has {len(self._sensors)} measurements: name one with "
+                f"sensor= ({', '.join(self._sensors)})"
+            )
+        s = self._sensors.get(sensor)
+        if s is None:
+            raise ValueError(
+                f"sensor {sensor!r} is not a measurement of the model ({', '.join(self._sensors)})"
+            )
+        return s
+
+    def _compile(self, name: str) -> None:
         n = self.n
+        s = self._sensors[name]
         try:
-            self._step(
-                self._x.copy(), self._P.copy(), np.zeros((n, n)), EMPTY1, np.zeros(self.m),
-                self._noise, _INF, self._kflags | self._jflag, 0.0, SCRATCH[0],
+            s.step(
+                self._x.copy(), self._P.copy(), np.zeros((n, n)), EMPTY1, np.zeros(s.m),
+                s.noise, _INF, s.flags | self._jflag, 0.0, SCRATCH[0],
                 _empty((n, n)), _empty(n), _empty((n, n)),
             )  # fmt: skip
         except Exception as e:
             if type(e).__module__.startswith("numba"):
-                first = str(e).strip().splitlines()
                 raise TypeError(
-                    f"compiled model: the step did not compile for a state of {n} and a "
-                    f"measurement of {self.m} float64 values: "
-                    + (" ".join(first[:12]) if first else type(e).__name__)
+                    f"compiled model: the step of measurement {name!r} did not compile for "
+                    f"a state of {n} and a measurement of {s.m} float64 values: " + _numba_reason(e)
                 ) from e
             raise
 
-    def block(self, z: Any) -> Block:
-        """The observation block of measurement z (this model's h, H and R)."""
-        return Block(self.label, z, self._R, h=self.model.h, jacobian=self.model.H)
+    def block(self, z: Any, sensor: str | None = None) -> Block:
+        """The observation block of a sample z of measurement ``sensor`` (its name, h, H
+        and R)."""
+        s = self._sensor(sensor)
+        return Block(s.name, z, s.R, h=s.h, jacobian=s.H)
 
     def predict(self, dt: float, u: Any = None, *, Q: Any = None) -> None:
         """As the EKF's predict; ``u`` None means no control input (an empty array)."""
@@ -310,12 +433,21 @@ class CompiledExtendedKalmanFilter(ExtendedKalmanFilter):
         """As the EKF's step; ``u`` None means no control input (an empty array)."""
         return super().step(dt, obs, EMPTY1 if u is None else u, gate=gate, Q=Q)
 
-    def fuse(self, dt: float, z: Any, u: Any = None, *, gate: float | None = ...) -> UpdateResult:  # type: ignore[assignment]
-        """Predict by dt seconds with control input u, then fuse measurement z, in one
-        compiled call: the result, state and errors of ``step(dt, block(z), u, gate=gate)``.
-        Falls back to that call when the history is recorded or the compiled step cannot
-        take the inputs (wrong shapes, non-finite values), so the error raised is the
-        EKF's own."""
+    def fuse(
+        self,
+        dt: float,
+        z: Any,
+        u: Any = None,
+        *,
+        sensor: str | None = None,
+        gate: float | None = ...,  # type: ignore[assignment]
+    ) -> UpdateResult:
+        """Predict by dt seconds with control input u, then fuse the sample z of
+        measurement ``sensor``, in one compiled call: the result, state and errors of
+        ``step(dt, block(z, sensor), u, gate=gate)``. Falls back to that call when the
+        history is recorded or the compiled step cannot take the inputs (wrong shapes,
+        non-finite values), so the error raised is the EKF's own."""
+        s = self._only if sensor is None and self._only is not None else self._sensor(sensor)
         if not 0.0 <= dt < _INF:
             check_dt(dt)
         if gate is ...:
@@ -325,37 +457,37 @@ class CompiledExtendedKalmanFilter(ExtendedKalmanFilter):
         zv = _vector(z)
         uv = EMPTY1 if u is None else _vector(u)
         Qm = self._Q if type(self._Q) is _ND else self._Q_at(dt)
-        if self.history is not None or zv.shape[0] != self.m:
-            return super().step(dt, self.block(zv), uv, gate=gate)
-        m = self.m
+        m = s.m
+        if self.history is not None or zv.shape[0] != m:
+            return super().step(dt, self.block(zv, sensor), uv, gate=gate)
         thr = _INF if gate is None else gate_threshold(gate, m)
         n = self.n
         P_prior = _empty(self._nn)
         x_out = _empty(n)
         P_out = _empty(self._nn)
-        flags = self._kflags | self._jflag
-        nis, xn = self._step(
-            self._x, self._P, Qm, uv, zv, self._noise, thr, flags, dt, SCRATCH[0],
+        flags = s.flags | self._jflag
+        nis, xn = s.step(
+            self._x, self._P, Qm, uv, zv, s.noise, thr, flags, dt, SCRATCH[0],
             P_prior, x_out, P_out,
         )  # fmt: skip
         if nis == _WS_SMALL:
             ws = grow_scratch(max(n * n, 2 * m + 2 * m * m + 3 * n * m))
-            nis, xn = self._step(
-                self._x, self._P, Qm, uv, zv, self._noise, thr, flags, dt, ws,
+            nis, xn = s.step(
+                self._x, self._P, Qm, uv, zv, s.noise, thr, flags, dt, ws,
                 P_prior, x_out, P_out,
             )  # fmt: skip
         if nis in (_STEP_PREDICT, _BAD_SHAPE):  # nothing kept: the EKF's step diagnoses
-            return super().step(dt, self.block(zv), uv, gate=gate)
+            return super().step(dt, self.block(zv, sensor), uv, gate=gate)
         self._x = self.x_prior = xn
         self._P = self.P_prior = P_prior
         if nis < 0.0:  # the update part failed: the predict stands, update raises why
-            return self.update(self.block(zv), gate)
+            return self.update(self.block(zv, sensor), gate)
         res = _new(UpdateResult)
         if nis > thr:
-            res._one = (self.label, m, nis, False, thr)
+            res._one = (s.name, m, nis, False, thr)
             res._outcomes = None
             return res
-        res._one = (self.label, m, nis, True, None if gate is None else thr)
+        res._one = (s.name, m, nis, True, None if gate is None else thr)
         res._outcomes = None
         self._x = self.x_post = x_out
         self._P = self.P_post = P_out

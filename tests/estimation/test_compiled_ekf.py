@@ -69,11 +69,12 @@ def _write_model(folder: Path, scale: float = 9.81) -> str:
 
 
 def _forget(model) -> None:
-    """Delete the generated step module and numba's files for it from the cache."""
-    if model.path is not None:
-        digest = model.path.stem.removeprefix("ekf_step_")
-        for p in list(model.path.parent.parent.rglob(f"*{digest}*")):
-            p.unlink()
+    """Delete the generated step modules and numba's files for them from the cache."""
+    for path in model.paths.values():
+        if path is not None:
+            digest = path.stem.removeprefix("ekf_step_")
+            for p in list(path.parent.parent.rglob(f"*{digest}*")):
+                p.unlink()
 
 
 @pytest.fixture(scope="module")
@@ -108,11 +109,11 @@ def _inputs(steps: int = 240):
 def test_fuse_gives_the_ordinary_step_and_the_numpy_backend(pendulum, use, R):
     mod, made = pendulum
     use("numba")
-    model = compile_model(mod.f, mod.F, mod.h, mod.H)
+    model = compile_model(mod.f, mod.F, measurements={"imu": (mod.h, mod.H)})
     made.append(model)
-    assert model.cached and model.path.exists()
+    assert model.cached and model.paths["imu"].exists()
     Q = lambda dt: np.diag([1e-6, 1e-3, 1e-7]) * dt  # noqa: E731 - a Q(dt) as users give it
-    fast = CompiledExtendedKalmanFilter(X0, P0, model, Q, R, label="imu", gate=0.999)
+    fast = CompiledExtendedKalmanFilter(X0, P0, model, Q, R, gate=0.999)
     plain = ExtendedKalmanFilter(X0, P0, f=mod.f, F=mod.F, Q=Q, gate=0.999)
     track, rejected = [], 0
     for dt, z, u in _inputs():
@@ -160,8 +161,8 @@ def test_the_step_is_cached_and_a_changed_model_compiles_anew(tmp_path):
         "    k.fuse(0.1, np.array([0.2, 0.0]))\n"
         "    o = Observations().add('z', [0.2, 0.0], h=m.h, jacobian=m.H, R=[0.01, 0.02])\n"
         "    p.step(0.1, o, np.zeros(0))\n"
-        "s = model.step.stats\n"
-        "print(json.dumps({'path': str(model.path), 'hits': len(s.cache_hits), "
+        "s = model.steps['z'].stats\n"
+        "print(json.dumps({'path': str(model.paths['z']), 'hits': len(s.cache_hits), "
         "'misses': len(s.cache_misses), 'x': k.x.tolist(), 'plain': p.x.tolist()}))\n"
     )
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]))
@@ -198,6 +199,57 @@ def test_the_step_is_cached_and_a_changed_model_compiles_anew(tmp_path):
                 f.unlink()
 
 
+def test_several_measurements_each_fused_in_one_call(pendulum, use):
+    """A model of two sensors (the tilt sensor, h[0], and the rate sensor, h[1], as two
+    measurements): a sample of either is fused by its own step, with the numbers of the
+    ordinary step given that sensor's block; naming a sensor is required and checked."""
+    mod, made = pendulum
+    use("numba")
+    tilt = numba.njit(lambda x: mod.h(x)[:1])
+    tilt_J = numba.njit(lambda x: mod.H(x)[:1])
+    rate = numba.njit(lambda x: mod.h(x)[1:])
+    rate_J = numba.njit(lambda x: mod.H(x)[1:])
+    model = compile_model(
+        mod.f, mod.F, measurements={"tilt": (tilt, tilt_J), "rate": (rate, rate_J)}
+    )
+    made.append(model)
+    R = {"tilt": 0.01, "rate": [0.02]}
+    fast = CompiledExtendedKalmanFilter(X0, P0, model, 1e-4, R, gate=0.999)
+    plain = ExtendedKalmanFilter(X0, P0, f=mod.f, F=mod.F, Q=1e-4, gate=0.999)
+    funcs = {"tilt": (tilt, tilt_J), "rate": (rate, rate_J)}
+    for k, (dt, z, u) in enumerate(_inputs(60)):
+        name = ("tilt", "rate")[k % 2]
+        zk = z[:1] if name == "tilt" else z[1:]
+        a = fast.fuse(dt, zk, u, sensor=name)
+        h, J = funcs[name]
+        obs = Observations().add(name, zk, h=h, jacobian=J, R=R[name])
+        assert a == plain.step(dt, obs, EMPTY1 if u is None else u)
+        np.testing.assert_allclose(fast.x, plain.x, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(fast.P, plain.P, rtol=0, atol=1e-12)
+    assert _error(lambda: fast.fuse(0.1, [0.1])) == (
+        ValueError,
+        "fuse: the model has 2 measurements: name one with sensor= (tilt, rate)",
+    )
+    assert _error(lambda: fast.fuse(0.1, [0.1], sensor="gyro")) == (
+        ValueError,
+        "sensor 'gyro' is not a measurement of the model (tilt, rate)",
+    )
+    assert _error(lambda: CompiledExtendedKalmanFilter(X0, P0, model, 1e-4, 0.01)) == (
+        ValueError,
+        "R: the model has 2 measurements (tilt, rate): give a dict of their noises",
+    )
+    assert _error(lambda: CompiledExtendedKalmanFilter(X0, P0, model, 1e-4, {"tilt": 0.01})) == (
+        ValueError,
+        "R: no noise given for measurement 'rate'",
+    )
+    assert _error(lambda: setattr(fast, "R", {"tilt": 0.01, "rate": 0.02, "rte": 1.0})) == (
+        ValueError,
+        "R: 'rte' is not a measurement of the model (tilt, rate)",
+    )
+    assert _error(lambda: setattr(fast, "R", {"tilt": 0.01, "rate": -1.0}))[0] is ValueError
+    assert fast.R["rate"].tolist() == [0.02]  # a refused R changes nothing
+
+
 def _readme_example() -> str:
     """The README's compiled-model example (estimation library, "A compiled model")."""
     readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
@@ -212,7 +264,7 @@ def test_the_readmes_example_runs_uncached_with_the_ordinary_steps_numbers(use):
     ns: dict = {"__name__": "readme_example", "dt": 0.1, "r": 2.05, "a": 0.2}
     exec(compile(_readme_example(), "README.md", "exec"), ns)
     model, ekf = ns["model"], ns["ekf"]
-    assert not model.cached and model.path is None
+    assert not model.cached and model.paths == {"z": None}
     assert ns["result"].updated and ekf.x[0] > 0.0  # the range says: off the start
     plain = ExtendedKalmanFilter([0.0, 1.0], np.eye(2), f=ns["f"], F=ns["F"], Q=1e-3, gate=0.999)
     fast = CompiledExtendedKalmanFilter([0.0, 1.0], np.eye(2), model, Q=1e-3, R=0.01, gate=0.999)
@@ -305,11 +357,44 @@ def test_what_cannot_be_compiled_is_refused_with_a_sentence(use, pendulum):
 
     model = compile_model(mod.f, mod.F, scalar_h, mod.H)
     kind, text = _error(lambda: CompiledExtendedKalmanFilter(X0, P0, model, 1e-4, 0.01))
-    assert kind is TypeError
-    assert text.startswith(
-        "compiled model: the step did not compile for a state of 3 and a measurement of "
-        "1 float64 values: "
-    ), text
+    assert (kind, text) == (
+        TypeError,
+        "compiled model: h returned a value of type float, expected a 1-D float64 array",
+    )
+
+    @numba.njit
+    def narrow_H(x):
+        return np.zeros((1, 2))  # two columns for a state of three
+
+    model = compile_model(mod.f, mod.F, measurements={"a": (mod.h, mod.H), "b": (mod.h, narrow_H)})
+    kind, text = _error(lambda: CompiledExtendedKalmanFilter(X0, P0, model, 1e-4, {"a": 1, "b": 1}))
+    assert (kind, text) == (
+        TypeError,
+        "compiled model: H of measurement 'b' returned an array of float64 with shape (1, 2), "
+        "expected a float64 array of shape (2, 3)",
+    )
+
+    @numba.njit
+    def int_z(x):
+        return np.array([1, 2])  # integers: numba types the step for them, the kernel not
+
+    model = compile_model(mod.f, mod.F, int_z, mod.H)
+    kind, text = _error(lambda: CompiledExtendedKalmanFilter(X0, P0, model, 1e-4, 0.01))
+    assert (kind, text) == (
+        TypeError,
+        "compiled model: h returned an array of int64 with shape (2,), expected a 1-D "
+        "float64 array",
+    )
+
+    @numba.njit
+    def odd_f(x, dt, u):
+        return x.reshape((1, 3)) * 1.0  # float64 of the right size, the wrong rank
+
+    model = compile_model(odd_f, mod.F, mod.h, mod.H)
+    kind, text = _error(lambda: CompiledExtendedKalmanFilter(X0, P0, model, 1e-4, 0.01))
+    assert kind is TypeError and text.startswith(
+        "compiled model: f returned an array of float64 with shape (1, 3)"
+    )
     kind, text = _error(lambda: CompiledExtendedKalmanFilter(X0, P0, (mod.f, mod.F), 1e-4, 0.01))
     assert (kind, text) == (
         TypeError,
