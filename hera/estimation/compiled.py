@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import importlib
 import importlib.util
 import inspect
 import math
@@ -271,6 +272,32 @@ class CompiledModel:
             self.steps[name], self.paths[name] = _compile_step(fns, kernels)
         self.cached = all(p is not None for p in self.paths.values())
 
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        """Pickled as its functions, by (module, name) where they are importable (numba
+        would pickle them by value: a different function object, so no cache hit): the
+        process that unpickles it builds the steps again, from the cache when they are
+        cached, instead of unpickling compiled code."""
+        pairs = {k: (_ref(h), _ref(H)) for k, (h, H) in self.measurements.items()}
+        return _rebuild_model, (_ref(self.f), _ref(self.F), pairs)
+
+
+def _ref(fn: Any) -> Any:
+    """A model function for pickling: ("module", "name") when importable, else itself."""
+    return _importable(fn) or fn
+
+
+def _deref(ref: Any) -> Any:
+    """The function ``_ref`` gave: imported by its name, or the function itself."""
+    if isinstance(ref, tuple):
+        return getattr(importlib.import_module(ref[0]), ref[1])
+    return ref
+
+
+def _rebuild_model(f: Any, F: Any, pairs: dict[str, tuple[Any, Any]]) -> CompiledModel:
+    """A pickled ``CompiledModel`` built again (see ``CompiledModel.__reduce__``)."""
+    named = {k: (_deref(h), _deref(H)) for k, (h, H) in pairs.items()}
+    return CompiledModel(_deref(f), _deref(F), named)
+
 
 def compile_model(
     f: Any,
@@ -334,10 +361,18 @@ class CompiledExtendedKalmanFilter(ExtendedKalmanFilter):
             x0, P0, f=model.f, Q=Q, F=model.F, joseph=joseph, gate=gate, cache_dt=cache_dt
         )
         self.model = model
-        self._sensors: dict[str, _Sensor] = {}
-        n = self.n
+        self._bind()
+        self.R = R
+        for name in self._sensors:
+            self._compile(name)
+
+    def _bind(self) -> None:
+        """The model's measurements as ``_Sensor`` records (noise set by ``R``), the model
+        functions' values at the state checked (type and shape) on the way."""
+        model, n = self.model, self.n
         _check_return("f", model.f(self._x.copy(), 0.0, EMPTY1), (n,))
         _check_return("F", model.F(self._x.copy(), 0.0, EMPTY1), (n, n))
+        self._sensors: dict[str, _Sensor] = {}
         for name, (h, H) in model.measurements.items():
             s = _Sensor()
             s.name, s.h, s.H, s.step = name, h, H, model.steps[name]
@@ -346,9 +381,21 @@ class CompiledExtendedKalmanFilter(ExtendedKalmanFilter):
             _check_return(f"H{of}", H(self._x.copy()), (s.m, n))
             self._sensors[name] = s
         self._only = next(iter(self._sensors.values())) if len(self._sensors) == 1 else None
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled without the compiled steps: the model pickles as its functions and
+        rebuilds its steps from the cache (a fusion measure's checkpoint)."""
+        state = self.__dict__.copy()
+        del state["_sensors"], state["_only"], state["f"], state["F"]  # the model's
+        state["_R_by_name"] = self.R
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        R = state.pop("_R_by_name")
+        self.__dict__.update(state)
+        self.f, self.F = self.model.f, self.model.F
+        self._bind()
         self.R = R
-        for name in self._sensors:
-            self._compile(name)
 
     @property
     def R(self) -> dict[str, np.ndarray]:

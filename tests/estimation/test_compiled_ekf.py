@@ -144,50 +144,66 @@ def test_fuse_gives_the_ordinary_step_and_the_numpy_backend(pendulum, use, R):
         np.testing.assert_allclose(ref.x, x, rtol=0, atol=1e-9)
 
 
-def test_the_step_is_cached_and_a_changed_model_compiles_anew(tmp_path):
-    """Three fresh processes: the first compiles the step (a cache miss), the second loads
-    it (a hit, nothing compiled), the third has the model's source changed (g / L 9.81 ->
-    4.0) and must compile a new step and follow the new model, not the cached one."""
+def test_the_step_is_cached_pickles_and_a_changed_model_compiles_anew(tmp_path):
+    """Three fresh processes. The first compiles the step (a cache miss) and pickles its
+    filter half way (a fusion measure's checkpoint); the second unpickles that filter, its
+    step loaded from the cache (a hit, nothing compiled), and goes on exactly as the first;
+    the third has the model's source changed (g / L 9.81 -> 4.0) and must compile a new
+    step and follow the new model, not the cached one."""
     name = _write_model(tmp_path)
     probe = (
-        f"import json, sys, numpy as np; import {name} as m\n"
+        f"import json, pickle, sys, numpy as np; import {name} as m\n"
         "from hera.estimation import CompiledExtendedKalmanFilter, compile_model\n"
-        "model = compile_model(m.f, m.F, m.h, m.H)\n"
-        "x0 = np.array([0.3, 0.0, 0.05])\n"
-        "k = CompiledExtendedKalmanFilter(x0, np.eye(3), model, 1e-4, [0.01, 0.02])\n"
         "from hera.estimation import ExtendedKalmanFilter, Observations\n"
+        "x0, mode, pkl = np.array([0.3, 0.0, 0.05]), sys.argv[1], sys.argv[2]\n"
+        "if mode == 'load':\n"
+        "    k = pickle.load(open(pkl, 'rb'))\n"
+        "else:\n"
+        "    k = CompiledExtendedKalmanFilter(\n"
+        "        x0, np.eye(3), compile_model(m.f, m.F, m.h, m.H), 1e-4, [0.01, 0.02])\n"
         "p = ExtendedKalmanFilter(x0, np.eye(3), f=m.f, F=m.F, Q=1e-4)\n"
-        "for _ in range(5):\n"
-        "    k.fuse(0.1, np.array([0.2, 0.0]))\n"
-        "    o = Observations().add('z', [0.2, 0.0], h=m.h, jacobian=m.H, R=[0.01, 0.02])\n"
+        "for i in range(10):\n"
+        "    z = np.array([0.2 + 0.01 * i, 0.0])\n"
+        "    o = Observations().add('z', z, h=m.h, jacobian=m.H, R=[0.01, 0.02])\n"
         "    p.step(0.1, o, np.zeros(0))\n"
-        "s = model.steps['z'].stats\n"
-        "print(json.dumps({'path': str(model.paths['z']), 'hits': len(s.cache_hits), "
+        "    if mode != 'load' or i >= 5:\n"
+        "        k.fuse(0.1, z)\n"
+        "    if mode == 'dump' and i == 4:\n"
+        "        pickle.dump(k, open(pkl, 'wb'))\n"
+        "s = k.model.steps['z'].stats\n"
+        "print(json.dumps({'path': str(k.model.paths['z']), 'hits': len(s.cache_hits), "
         "'misses': len(s.cache_misses), 'x': k.x.tolist(), 'plain': p.x.tolist()}))\n"
     )
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]))
+    pkl = str(tmp_path / "filter.pkl")
 
-    def run() -> dict:
+    def run(mode: str) -> dict:
         got = subprocess.run(
-            [sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=300
+            [sys.executable, "-c", probe, mode, pkl],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=300,
         )
         assert got.returncode == 0, got.stderr[-3000:]
         out = json.loads(got.stdout.splitlines()[-1])
-        # the compiled step follows the functions this process imported
+        # the compiled step follows the functions this process imported, and an unpickled
+        # filter goes on as the ordinary EKF that ran all ten steps
         np.testing.assert_allclose(out["x"], out["plain"], rtol=0, atol=1e-12)
         return out
 
     paths = []
     try:
-        first = run()
+        first = run("dump")
         paths.append(first["path"])
         assert (first["hits"], first["misses"]) == (0, 1)
-        second = run()
+        assert Path(pkl).stat().st_size < 4000  # the functions by name, no machine code
+        second = run("load")
         assert second["path"] == first["path"]
         assert (second["hits"], second["misses"]) == (1, 0)
         assert second["x"] == first["x"]
         (tmp_path / f"{name}.py").write_text(MODEL.format(scale=4.0))
-        third = run()
+        third = run("fresh")
         paths.append(third["path"])
         assert third["path"] != first["path"]
         assert (third["hits"], third["misses"]) == (0, 1)
