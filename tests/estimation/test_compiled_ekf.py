@@ -314,6 +314,13 @@ def test_history_and_the_ordinary_calls_still_work(pendulum, use):
     plain.predict(0.1, EMPTY1)
     plain.update(Observations().add("z", [0.2, 0.01], h=mod.h, jacobian=mod.H, R=[0.01, 0.02]))
     np.testing.assert_allclose(fast.x, plain.x, rtol=0, atol=1e-12)
+    fast.joseph = plain.joseph = False  # the short form P - K H P, as the ordinary EKF's
+    for dt, z, u in _inputs(10):
+        fast.fuse(dt, z, u)
+        obs = Observations().add("z", z, h=mod.h, jacobian=mod.H, R=[0.01, 0.02])
+        plain.step(dt, obs, EMPTY1 if u is None else u)
+        # bit for bit: the same kernel with the same flag (the two forms differ by roundoff)
+        np.testing.assert_array_equal(fast.P, plain.P)
 
 
 def _pair(pendulum):
