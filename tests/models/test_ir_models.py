@@ -19,7 +19,22 @@ import pickle
 
 import numpy as np
 import pytest
-from ir_offline import EPOCH, Clock, ir_source, rms, run, tc_sources
+from ir_offline import (
+    EPOCH,
+    LONG,
+    MEDIUM,
+    PAIR,
+    SHORT,
+    Clock,
+    errors,
+    ir_source,
+    rms,
+    run,
+    start_scores,
+    tc_sources,
+    track,
+)
+from parallel import run_each
 
 from hera.application import EvalOptions, Series
 from hera.models.ir.app import IrApp, hot_error, ir_truth, map_accuracy, plate_maps
@@ -32,44 +47,8 @@ from hera.models.ir.tracker import IrTracker
 from hera.store import Sample
 from hera.wire import decode, encode
 
-MEDIUM, LONG, SHORT = "GP2Y0A21YK0F", "GP2Y0A02YK0F", "GP2Y0A41SK0F"
-PAIR = (("ir_medium", MEDIUM), ("ir_long", LONG))
 APP = IrApp()
 SEEDS = range(6)
-
-
-def track(world, seed, models, duration=40.0, parts=PAIR, board_model=None, skip=None):
-    """An offline tracking run; returns {model name: scores of the application}."""
-    world = {**world, "seed": seed, "epoch": EPOCH}
-    clock = Clock()
-    sources = [
-        ir_source(
-            world,
-            clock,
-            name,
-            part,
-            seed,
-            phase=0.007 * i,
-            model=(board_model or {}).get(name),
-            skip=(skip or {}).get(name, lambda tau: False),
-        )
-        for i, (name, part) in enumerate(parts)
-    ]
-    out = run(world, sources, models, clock, duration, seed=seed)
-    truth = ir_truth(world)
-    scores = {}
-    for name in models:
-        t, v = out.series(name)
-        s = Series(name, "offline", IrTracker.columns, t, v, IrTrack)
-        scores[name] = {**APP.score(s, truth, EvalOptions()), "series": s}
-    return out, scores
-
-
-def errors(series: Series, world, seed):
-    truth = ir_truth({**world, "seed": seed, "epoch": EPOCH})
-    return series.column("distance [cm]") - np.array(
-        [truth.at(t)["distance [cm]"] for t in series.t]
-    )
 
 
 # -- calibration -------------------------------------------------------------------------
@@ -168,20 +147,18 @@ def test_from_the_poor_initial_guess_within_a_cm_in_a_second():
         assert s["rmse_cm"] <= 0.6, (seed, s["rmse_cm"])
 
 
-def _starts(world, x0, seconds, **settings):
-    """Each start of seeds 0-19 in both sensor orders (whichever reading comes first):
-    (the RMS error over 0.3-2 s, the largest |velocity| then, the converge time)."""
-    out = []
-    for seed in range(20):
-        for parts in (PAIR, PAIR[::-1]):
-            r = track(world, seed, {"e": IrTracker(x0=x0, **settings)}, seconds, parts)[1]["e"]
-            ser = r["series"]
-            t = ser.t - EPOCH
-            m = (t >= 0.3) & (t < 2.0)
-            err = errors(ser, world, seed)[m]
-            speed = np.abs(ser.column("velocity [cm/s]")[m]).max()
-            out.append((rms(err), speed, 9.0 if r["converge_s"] is None else r["converge_s"]))
-    return np.array(out)
+def _starts(*studies):
+    """For each study (world, x0, settings), each start of seeds 0-19 in both sensor orders
+    (whichever reading comes first), 4 s: (the RMS error over 0.3-2 s, the largest
+    |velocity| then, the converge time). All the studies' starts in one pool on every core."""
+    calls = [
+        dict(world=world, seed=seed, x0=x0, seconds=4.0, parts=parts, settings=settings)
+        for world, x0, settings in studies
+        for seed in range(20)
+        for parts in (PAIR, PAIR[::-1])
+    ]
+    scores = np.array(run_each(start_scores, calls))
+    return np.split(scores, len(studies))
 
 
 def test_the_start_mixture_keeps_a_still_block_still_and_catches_a_moving_one():
@@ -192,15 +169,19 @@ def test_the_start_mixture_keeps_a_still_block_still_and_catches_a_moving_one():
     percentile of the converge time 0.23 s against 0.84). On random moves it loses nothing
     to the wide prior, where the narrow prior alone is up to 1.8 s late."""
     still = {"scenario": "ir_stationary", "distance_cm": 70.0}
-    mix, wide = _starts(still, [50.0, 0.0], 4.0), _starts(still, [50.0, 0.0], 4.0, v0_still=0)
+    moving = {"scenario": "ir_back_and_forth"}
+    mix, wide, mix_m, wide_m, narrow = _starts(
+        (still, [50.0, 0.0], {}),
+        (still, [50.0, 0.0], {"v0_still": 0}),
+        (moving, None, {}),
+        (moving, None, {"v0_still": 0}),
+        (moving, None, {"p0": [100.0, 1.0], "v0_still": 0}),
+    )
     assert mix[:, 1].mean() < 0.8 * wide[:, 1].mean(), (mix[:, 1].mean(), wide[:, 1].mean())
     assert mix[:, 0].mean() < 0.9 * wide[:, 0].mean(), (mix[:, 0].mean(), wide[:, 0].mean())
     assert np.percentile(mix[:, 2], 95) <= 0.5, np.sort(mix[:, 2])[-4:]
     assert (mix[:, 2] <= 1.0).mean() >= 0.95, np.sort(mix[:, 2])[-4:]
-    moving = {"scenario": "ir_back_and_forth"}
-    mix, wide = _starts(moving, None, 4.0), _starts(moving, None, 4.0, v0_still=0)
-    narrow = _starts(moving, None, 4.0, p0=[100.0, 1.0], v0_still=0)
-    assert mix[:, 2].max() <= 0.3 and mix[:, 0].mean() <= 1.05 * wide[:, 0].mean()
+    assert mix_m[:, 2].max() <= 0.3 and mix_m[:, 0].mean() <= 1.05 * wide_m[:, 0].mean()
     assert narrow[:, 2].max() > 1.0  # the narrow prior alone is late on a moving start
 
 

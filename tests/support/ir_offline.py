@@ -14,6 +14,10 @@ from typing import Any
 
 import numpy as np
 
+from hera.application import EvalOptions, Series
+from hera.models.ir.app import IrApp, ir_truth
+from hera.models.ir.measures import IrTrack
+from hera.models.ir.tracker import IrTracker
 from hera.nodes.ir.plate import ThermocoupleModel
 from hera.nodes.ir.scenarios import PlateScene
 from hera.nodes.ir.sharp import SharpModel, variant
@@ -23,6 +27,8 @@ from hera.nodes.world import make_scenario
 from hera.store import Sample
 
 EPOCH = 1_800_000_000.0
+MEDIUM, LONG, SHORT = "GP2Y0A21YK0F", "GP2Y0A02YK0F", "GP2Y0A41SK0F"
+PAIR = (("ir_medium", MEDIUM), ("ir_long", LONG))
 
 
 class Clock:
@@ -165,3 +171,52 @@ def run(
 
 def rms(x: np.ndarray) -> float:
     return float(math.sqrt(np.mean(np.square(x)))) if len(x) else math.nan
+
+
+def track(world, seed, models, duration=40.0, parts=PAIR, board_model=None, skip=None):
+    """An offline tracking run of the Sharp boards ``parts`` ((name, part) pairs); returns
+    (the run, {model name: the application's scores plus its "series"})."""
+    world = {**world, "seed": seed, "epoch": EPOCH}
+    clock = Clock()
+    sources = [
+        ir_source(
+            world,
+            clock,
+            name,
+            part,
+            seed,
+            phase=0.007 * i,
+            model=(board_model or {}).get(name),
+            skip=(skip or {}).get(name, lambda tau: False),
+        )
+        for i, (name, part) in enumerate(parts)
+    ]
+    out = run(world, sources, models, clock, duration, seed=seed)
+    truth = ir_truth(world)
+    app = IrApp()
+    scores = {}
+    for name in models:
+        t, v = out.series(name)
+        s = Series(name, "offline", IrTracker.columns, t, v, IrTrack)
+        scores[name] = {**app.score(s, truth, EvalOptions()), "series": s}
+    return out, scores
+
+
+def errors(series, world, seed) -> np.ndarray:
+    """The distance error (cm) of every estimate of ``series`` against the world's truth."""
+    truth = ir_truth({**world, "seed": seed, "epoch": EPOCH})
+    return series.column("distance [cm]") - np.array(
+        [truth.at(t)["distance [cm]"] for t in series.t]
+    )
+
+
+def start_scores(world, seed, x0, seconds, parts, settings) -> tuple[float, float, float]:
+    """One start of an ``IrTracker(x0=x0, **settings)``: (the RMS error over 0.3-2 s, the
+    largest |velocity| then, the converge time, 9 s when it never converged)."""
+    r = track(world, seed, {"e": IrTracker(x0=x0, **settings)}, seconds, parts)[1]["e"]
+    ser = r["series"]
+    t = ser.t - EPOCH
+    m = (t >= 0.3) & (t < 2.0)
+    err = errors(ser, world, seed)[m]
+    speed = np.abs(ser.column("velocity [cm/s]")[m]).max()
+    return rms(err), float(speed), 9.0 if r["converge_s"] is None else r["converge_s"]
