@@ -60,7 +60,7 @@ from .gating import gate_threshold
 from .observations import Block
 from .results import UpdateResult
 from .stacking import EMPTY1, SCRATCH, grow_scratch
-from .state import check_dt
+from .state import check_dt, process_noise
 
 __all__ = ["CompiledExtendedKalmanFilter", "CompiledModel", "compile_model"]
 
@@ -488,10 +488,12 @@ class CompiledExtendedKalmanFilter(ExtendedKalmanFilter):
         *,
         sensor: str | None = None,
         gate: float | None = ...,  # type: ignore[assignment]
+        Q: Any = None,
     ) -> UpdateResult:
         """Predict by dt seconds with control input u, then fuse the sample z of
         measurement ``sensor``, in one compiled call: the result, state and errors of
-        ``step(dt, block(z, sensor), u, gate=gate)``. Falls back to that call when the
+        ``step(dt, block(z, sensor), u, gate=gate, Q=Q)`` (``Q`` overrides the process
+        noise for this call). Falls back to that call when the
         history is recorded or the compiled step cannot take the inputs (wrong shapes,
         non-finite values), so the error raised is the EKF's own."""
         s = self._only if sensor is None and self._only is not None else self._sensor(sensor)
@@ -503,10 +505,13 @@ class CompiledExtendedKalmanFilter(ExtendedKalmanFilter):
             dt = float(dt)  # one compiled specialisation: dt a float64
         zv = _vector(z)
         uv = EMPTY1 if u is None else _vector(u)
-        Qm = self._Q if type(self._Q) is _ND else self._Q_at(dt)
+        if Q is not None:
+            Qm = process_noise(Q, self.n, "Q")
+        else:
+            Qm = self._Q if type(self._Q) is _ND else self._Q_at(dt)
         m = s.m
         if self.history is not None or zv.shape[0] != m:
-            return super().step(dt, self.block(zv, sensor), uv, gate=gate)
+            return super().step(dt, self.block(zv, sensor), uv, gate=gate, Q=Q)
         thr = _INF if gate is None else gate_threshold(gate, m)
         n = self.n
         P_prior = _empty(self._nn)
@@ -524,7 +529,7 @@ class CompiledExtendedKalmanFilter(ExtendedKalmanFilter):
                 P_prior, x_out, P_out,
             )  # fmt: skip
         if nis in (_STEP_PREDICT, _BAD_SHAPE):  # nothing kept: the EKF's step diagnoses
-            return super().step(dt, self.block(zv, sensor), uv, gate=gate)
+            return super().step(dt, self.block(zv, sensor), uv, gate=gate, Q=Q)
         self._x = self.x_prior = xn
         self._P = self.P_prior = P_prior
         if nis < 0.0:  # the update part failed: the predict stands, update raises why

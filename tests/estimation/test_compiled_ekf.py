@@ -314,6 +314,15 @@ def test_history_and_the_ordinary_calls_still_work(pendulum, use):
     plain.predict(0.1, EMPTY1)
     plain.update(Observations().add("z", [0.2, 0.01], h=mod.h, jacobian=mod.H, R=[0.01, 0.02]))
     np.testing.assert_allclose(fast.x, plain.x, rtol=0, atol=1e-12)
+    Q = np.diag([1e-5, 2e-3, 1e-8])  # a process noise for one call, as step(..., Q=Q)
+    fast.fuse(0.1, [0.25, 0.02], Q=Q)
+    plain.step(
+        0.1,
+        Observations().add("z", [0.25, 0.02], h=mod.h, jacobian=mod.H, R=[0.01, 0.02]),
+        EMPTY1,
+        Q=Q,
+    )
+    np.testing.assert_array_equal(fast.P, plain.P)
     fast.joseph = plain.joseph = False  # the short form P - K H P, as the ordinary EKF's
     for dt, z, u in _inputs(10):
         fast.fuse(dt, z, u)
