@@ -63,3 +63,21 @@ def test_ratio_is_paired_over_turns(monkeypatch):
     assert (ours_us, theirs_us) == (0.04, 0.03)
     assert ratio == 3.0
     assert gc.isenabled()
+
+
+def test_the_compiled_case_runs_the_benchmarks_model():
+    """The EKF's compiled columns time the same model as the others: the numba f, F, h, H
+    of ``kalman_compiled`` give what ``kalman._Model``'s give, at every case's n and m (so
+    a failing copy, say a Jacobian left out, cannot make the compiled case look fast)."""
+    from hera.bench import kalman_compiled as kc
+
+    rng = np.random.default_rng(3)
+    for n in (2, 4, 9):
+        for m in (1, 2, 3):
+            md = bench._Model(n, m)
+            x, u = rng.normal(size=n), np.zeros(0)
+            h, H = kc._MEASUREMENTS[m]
+            np.testing.assert_allclose(kc.f(x, md.dt, u), md.f(x, md.dt), rtol=0, atol=1e-15)
+            np.testing.assert_array_equal(kc.F(x, md.dt, u), md.f_jac(x, md.dt))
+            np.testing.assert_array_equal(h(x), md.h(x))
+            np.testing.assert_array_equal(H(x), md.h_jac(x))
