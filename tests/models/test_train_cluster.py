@@ -250,8 +250,8 @@ def test_replay_smooth_is_no_worse_than_the_forward_pass(train_run, tmp_path):
     forward (filtered) ones, at the same instants, as a run dir of its own. Scored against
     the truth: no worse than the filter that produced them (within the noise floors of
     METRICS; w of the rungs with a gyroscope within OMEGA_SLACK_PCT) on every metric of the
-    rungs in HELD; better, by more than the floor, on every metric of e6 and on at least 6
-    of the 19 metrics. Losses are not counted against gains: e4's and e5's are allowed (see
+    rungs in HELD; better, by more than the floor, on e6's whole-run w and position and on at
+    least 6 of the 19 metrics. Losses are not counted against gains: e4's and e5's are allowed (see
     HELD), and counting them made this check fail in two clean-clone runs (e4 and e5
     worse on 3 metrics while 14 others got better; before, 13 of 19 "better" with the gyro
     rungs' coin flips counted)."""
@@ -281,11 +281,14 @@ def test_replay_smooth_is_no_worse_than_the_forward_pass(train_run, tmp_path):
             elif key[0] in HELD:
                 assert s[metric] <= f[metric] + floor, (key, metric, f[metric], s[metric])
             better += s[metric] < f[metric] - floor
-    # e6: a model that knows its errors and a filter with room (0.4-1.4 % in w, 0.3-0.6 cm):
-    # smoothing must show there, on every metric, by the floor or by E6_GAIN of the filter's
-    # error, whichever is less (the floors are run-to-run noise; this is one run, paired)
+    # e6: a model that knows its errors and a filter with room (0.4-1.4 % in w over the run,
+    # its start included; 0.3-0.6 cm): smoothing must show there, by the floor or by E6_GAIN
+    # of the filter's error, whichever is less (the floors are run-to-run noise; this is one
+    # run, paired). Not on its settled w: since e6's w process noise went to 1e-5 (2026-12-06)
+    # the filter itself settles to 0.1-0.2 % in most runs, where the smoother has no room
+    # (one clean-clone run: 0.117 -> 0.128 %); that is held to the floor with HELD above.
     e6f, e6s = forward[("track_sonar", "replay")], smoothed[("track_sonar", "replay")]
-    for metric in ("omega_rms_pct", "omega_settled_rms_pct", "pos_rmse_cm"):
+    for metric in ("omega_rms_pct", "pos_rmse_cm"):
         floor = METRICS[metric.replace("_settled", "")]
         gain = min(floor, E6_GAIN * e6f[metric])
         assert e6s[metric] < e6f[metric] - gain, (metric, e6f[metric], e6s[metric])
