@@ -38,21 +38,21 @@ def test_bench_bus_quick_prints_every_figure(tmp_path):
         assert "n/a" not in rows[figure], rows[figure]
 
 
-def test_bench_scale_quick_runs_behind_a_router_with_mutual_tls_and_its_zenoh_peer(tmp_path):
+def test_bench_scale_runs_small_behind_a_router_with_mutual_tls_and_its_zenoh_peer(tmp_path):
     out = subprocess.run(
-        [sys.executable, "-m", "hera", "bench", "scale", "--quick"]
-        + ["--topologies", "routers", "--security", "tls"],
+        [sys.executable, "-m", "hera", "bench", "scale", "--nodes", "4", "--seconds", "3"]
+        + ["--phases", "grid", "--topologies", "routers", "--security", "tls"],
         env=cluster_env(tmp_path),
         capture_output=True,
         text=True,
         timeout=240,
     )
     assert out.returncode == 0, out.stderr[-3000:]
-    lines = [line.split() for line in out.stdout.splitlines() if line.lstrip().startswith("8 ")]
+    lines = [line.split() for line in out.stdout.splitlines() if line.lstrip().startswith("4 ")]
     rows = {r[3]: r for r in lines if len(r) == 15}  # the table: hera, then its peer
     assert list(rows) == ["hera/tls", "zenoh"], out.stdout
     for r in rows.values():
-        assert r[:3] == ["8", "routers", "grid"], r
+        assert r[:3] == ["4", "routers", "grid"], r
         assert float(r[4]) > 99.0, out.stdout  # delivered %, a number: not "failed: ..."
         busy, steal, worst = (float(x) for x in r[12:])  # the whole machine's figures
         assert 0.0 < busy <= 100.0 and 0.0 <= steal <= worst <= 100.0, r
