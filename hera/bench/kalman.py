@@ -252,6 +252,8 @@ def run(
     EKF rows also time the compiled model, numba backend only)."""
     rows = []
     warmup = max(5, steps // 10)
+    if compiled:
+        from . import kalman_compiled
     for kind in kinds:
         for n in sizes:
             for m in dims:
@@ -274,8 +276,6 @@ def run(
                     "step_ratio": step_ratio,
                 }
                 if kind == "EKF" and compiled:
-                    from . import kalman_compiled
-
                     row["compiled_us"], _, row["compiled_ratio"] = _alternating_medians(
                         kalman_compiled.stepper(md), _filterpy(kind, md), zs, warmup
                     )

@@ -68,13 +68,18 @@ def _write_model(folder: Path, scale: float = 9.81) -> str:
     return name
 
 
+def _forget_step(path: Path) -> None:
+    """Delete a generated step module and numba's files for it from the cache."""
+    digest = path.stem.removeprefix("ekf_step_")
+    for p in list(path.parent.parent.rglob(f"*{digest}*")):
+        p.unlink()
+
+
 def _forget(model) -> None:
-    """Delete the generated step modules and numba's files for them from the cache."""
+    """Delete a model's generated step modules and numba's files for them."""
     for path in model.paths.values():
         if path is not None:
-            digest = path.stem.removeprefix("ekf_step_")
-            for p in list(path.parent.parent.rglob(f"*{digest}*")):
-                p.unlink()
+            _forget_step(path)
 
 
 @pytest.fixture(scope="module")
@@ -210,9 +215,7 @@ def test_the_step_is_cached_pickles_and_a_changed_model_compiles_anew(tmp_path):
         assert third["x"] != first["x"]
     finally:
         for p in paths:
-            digest = Path(p).stem.removeprefix("ekf_step_")
-            for f in list(Path(p).parent.parent.rglob(f"*{digest}*")):
-                f.unlink()
+            _forget_step(Path(p))
 
 
 def test_several_measurements_each_fused_in_one_call(pendulum, use):
