@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import importlib.util
 import json
 import logging
 import sys
@@ -34,6 +36,7 @@ HELP_EXAMPLES = {
     "eval": "hera eval hera-run/train",
     "import": "hera import erlang-hera logs/2021-05 imported",
     "bench": "hera bench kalman --quick",
+    "cache": "hera cache clean --older-than 30",
     "certs": "hera certs deploy/two_hosts.toml --out certs",
     "start": "start with:\n  hera up train            a cluster, its live view\n"
     "  hera eval hera-run/train score the run",
@@ -340,6 +343,24 @@ def _parser() -> argparse.ArgumentParser:
 
     tools.add_parsers(sub, _command)
 
+    ca = _command(
+        sub, "cache", "show or clean the cache of compiled estimation code", HELP_EXAMPLES["cache"]
+    )
+    ca.add_argument("action", nargs="?", choices=("list", "clean"), default="list")
+    ca.add_argument(
+        "--older-than",
+        type=cliargs.non_negative,
+        default=30.0,
+        metavar="DAYS",
+        help="clean: also remove what was not used for this many days (default 30); the "
+        "kernels of installs that no longer exist go at any age",
+    )
+    ca.add_argument(
+        "--all", action="store_true", help="clean: everything (it compiles again when used)"
+    )
+    ca.add_argument("--dry-run", action="store_true", help="clean: say what would go; keep it")
+    ca.add_argument("--json", action="store_true", help="list: print JSON")
+
     b = _command(sub, "bench", "run a benchmark: " + ", ".join(BENCHES), HELP_EXAMPLES["bench"])
     b.add_argument("name", choices=BENCHES)
     b.add_argument("rest", nargs=argparse.REMAINDER, help="options of that benchmark")
@@ -464,6 +485,8 @@ def _dispatch(args: argparse.Namespace, argv: list[str] | None = None) -> int:
         return run.run(command)
     if args.cmd == "import":
         return _import(args)
+    if args.cmd == "cache":
+        return _cache(args)
     if args.cmd == "bench":
         module = importlib.import_module(f"hera.bench.{args.name}")
         return int(module.main(args.rest) or 0)
@@ -532,6 +555,58 @@ def _certs(args: argparse.Namespace) -> int:
     for path in written:
         print(f"  {path}")
     print(f"  {args.out}/secret (the cluster secret, for links without TLS)")
+    return 0
+
+
+def _cache(args: argparse.Namespace) -> int:
+    """``hera cache``: the entries of the estimation cache, or ``clean``: remove some."""
+    from hera.estimation import cache
+    from hera.estimation.backend import cache_dir
+
+    where = cache_dir()
+    spec = importlib.util.find_spec(f"hera.estimation.{cache.KERNELS_SOURCE}")
+    here = spec.origin if spec is not None else None
+    now = time.time()
+
+    def line(e: cache.Entry) -> str:
+        note = " (this install)" if e.current else " (install gone)" if e.gone else ""
+        origin = e.origin or "install not recorded"
+        size, age = cache.megabytes(e.size), cache.describe_age(e.used, now)
+        return f"{e.kind:<8}{size:>9}  {age:<13} {origin}{note}"
+
+    if args.action == "list":
+        entries = cache.scan(where, here)
+        if args.json:
+            rows = [
+                {k: getattr(e, k) for k in ("kind", "name", "origin", "size", "used", "gone")}
+                | {"current": e.current}
+                for e in entries
+            ]
+            print(json.dumps({"cache": str(where), "entries": rows}, indent=1))
+            return 0
+        sets = sum(e.kind == "kernels" for e in entries)
+        total = cache.megabytes(sum(e.size for e in entries))
+        print(f"{where}: {sets} kernel sets, {len(entries) - sets} compiled models, {total}")
+        for e in entries:
+            print(line(e))
+        return 0
+    keep_out = where.is_dir() and not args.dry_run  # a compile waits while we delete
+    with cache.locked(where) if keep_out else contextlib.nullcontext():
+        entries = cache.scan(where, here)
+        chosen = cache.choose(entries, now, args.older_than, args.all)
+        verb = "would remove" if args.dry_run else "removed"
+        freed = sum(e.size for e in chosen) if args.dry_run else cache.remove(chosen)
+        if not args.dry_run:
+            for m in cache.orphan_markers(where):
+                with contextlib.suppress(OSError):
+                    m.unlink()
+    for e in chosen:
+        print(f"{verb}: {line(e)}")
+    kept = [e for e in entries if e not in chosen]
+    print(
+        f"{verb} {len(chosen)} entries ({cache.megabytes(freed)}); kept {len(kept)} "
+        f"({cache.megabytes(sum(e.size for e in kept))}) in {where}"
+    )
     return 0
 
 

@@ -32,6 +32,8 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+from . import cache as _cache
+
 __all__ = [
     "BACKENDS",
     "CACHE_ENV",
@@ -112,25 +114,6 @@ def _numba_cache_dir(path: Path) -> Iterator[None]:
         config.CACHE_DIR = old
 
 
-@contextlib.contextmanager
-def _file_lock(path: Path) -> Iterator[None]:
-    """An exclusive lock on ``path`` between processes (POSIX ``flock``); a no-op where it
-    cannot be had (no fcntl, a directory we cannot write)."""
-    try:
-        import fcntl
-
-        f = open(path, "a+b")  # noqa: SIM115 - held for the with block below
-    except (ImportError, OSError):
-        yield
-        return
-    with f:
-        fcntl.flock(f, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
-
-
 class _Kernels:
     """Namespace of compiled kernels; an attribute is compiled (or loaded from the cache)
     on first access and then stored on the instance, so later lookups are plain."""
@@ -185,17 +168,24 @@ class _Kernels:
             h.update(repr(cpu_target.target_context.codegen().magic_tuple()).encode())
         return self.cache / f"hera-kernels-{h.hexdigest()[:16]}.done"
 
+    def _cached(self, marker: Path) -> bool:
+        """Whether the marker says the kernels are cached and numba's folder for them is
+        there (a folder deleted by hand leaves a marker that would lie)."""
+        return marker.exists() and (self.cache / _cache.numba_folder(self._mod.__file__)).is_dir()
+
     def load_all(self) -> float:
         """Compile or load every kernel; the first time on this machine (no marker) with a
-        line on stderr before and after. Returns the seconds spent."""
+        line on stderr before and after. Records the use in the cache (its last use, for
+        ``hera cache clean``). Returns the seconds spent."""
         t0 = time.perf_counter()
         marker = self.marker()
-        if not marker.exists():
-            with _file_lock(self.cache / "hera-kernels.lock"):
-                if not marker.exists():  # nobody compiled them while we waited
+        if not self._cached(marker):
+            with _cache.locked(self.cache):
+                if not self._cached(marker):  # nobody compiled them while we waited
                     self._compile_all(marker)
         for name in self.names:
             getattr(self, name)
+        _cache.record_use(self.cache, self._mod.__file__)
         return time.perf_counter() - t0
 
     def _compile_all(self, marker: Path) -> None:
@@ -226,7 +216,7 @@ class _Kernels:
             getattr(self, name)
         spent = time.perf_counter() - t0
         try:
-            marker.write_text(" ".join(names) + "\n")
+            _cache.write_marker(marker, self._mod.__file__, names)
             where = f"cached in {self.cache}"
         except OSError as e:
             where = f"not cached: {e}"
@@ -235,6 +225,15 @@ class _Kernels:
             file=sys.stderr,
             flush=True,
         )
+        count, freed = _cache.prune_gone(self.cache)
+        if count:
+            print(
+                f"hera.estimation: removed the kernels of {count} install"
+                f"{'s' if count > 1 else ''} that no longer exist from the cache "
+                f"({_cache.megabytes(freed)})",
+                file=sys.stderr,
+                flush=True,
+            )
 
 
 def compile_jobs(count: int) -> int:

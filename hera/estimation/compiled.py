@@ -33,7 +33,7 @@ next process loads it in a fraction of a second. Otherwise (functions defined in
 or a function) the step compiles in every process (about 3 s on a 2-vCPU machine, the
 kernels themselves loaded from their cache). As with numba's own cache, a change in another
 file the model functions call into, or of a global they read (an array defined at import),
-is not seen: clear ``models/`` then.
+is not seen: ``hera cache clean --all`` then (or delete ``models/``).
 """
 
 from __future__ import annotations
@@ -54,6 +54,7 @@ from typing import Any
 import numpy as np
 
 from . import backend as _bk
+from . import cache as _cache
 from .correction import _MODE_HX, _WS_SMALL, _new
 from .ekf import _BAD_SHAPE, _STEP_PREDICT, ExtendedKalmanFilter
 from .gating import gate_threshold
@@ -200,6 +201,7 @@ def _load_file(path: Path, digest: str, cache: Path) -> Any:
     with _bk._numba_cache_dir(cache):  # numba picks the cache location at decoration
         spec.loader.exec_module(module)
     sys.modules[name] = module
+    _cache.touch(path)  # its last use, for hera cache clean
     return module.step
 
 

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 
+from hera.estimation.cache import numba_folder
 from hera.spec import tomllib
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -207,11 +208,16 @@ def test_the_install_compiles_its_kernels_once_into_a_user_cache(installed, tmp_
             timeout=600,
         )
 
+    where = cache / "hera" / "numba"
+    # the kernels of an install deleted since: the compile removes them (never loadable)
+    gone = where / numba_folder(tmp_path / "deleted-venv" / "estimation" / "kernels_numba.py")
+    gone.mkdir(parents=True)
+    (gone / "kernels_numba.kf_step-10.py311.nbi").write_bytes(b"x" * 4096)
+    (gone / "hera-origin").write_text(f"{tmp_path / 'deleted-venv' / 'estimation'}\n")
     bench = read_only("hera", "bench", "kalman", "--quick")
     assert bench.returncode == 0, bench.stdout[-2000:] + bench.stderr[-2000:]
     assert "hera.estimation backend: numba" in bench.stdout, bench.stdout[:500]
     assert sum(line.startswith(("KF ", "EKF ", "UKF ")) for line in bench.stdout.splitlines()) == 27
-    where = cache / "hera" / "numba"
     lines = bench.stderr.splitlines()
     assert any(
         line.startswith("hera.estimation: compiling ") and str(where) in line for line in lines
@@ -230,3 +236,10 @@ def test_the_install_compiles_its_kernels_once_into_a_user_cache(installed, tmp_
     )
     assert again.returncode == 0, again.stderr[-2000:]
     assert again.stdout.strip() == "numba" and "compiling" not in again.stderr, again.stderr
+    assert "hera.estimation: removed the kernels of 1 install that no longer exist" in (
+        bench.stderr
+    )
+    assert not gone.exists()
+    listed = read_only("hera", "cache")  # the set this install uses, its origin recorded
+    assert listed.returncode == 0, listed.stderr
+    assert f"{site / 'hera' / 'estimation'} (this install)" in listed.stdout, listed.stdout
