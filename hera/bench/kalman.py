@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import os
 import statistics
 import subprocess
 import sys
@@ -30,6 +31,7 @@ from collections.abc import Callable
 import numpy as np
 
 from hera import cliargs
+from hera.estimation.backend import BACKENDS, ENV_VAR, cache_dir
 from hera.nodestatus import rss_mb
 
 TARGET = 3.0
@@ -284,11 +286,14 @@ def run(
 
 
 def format_table(rows: list[dict]) -> str:
-    lines = [
+    """The bench's table; the compiled columns only when a row has them."""
+    head = (
         f"{'filter':<6} {'n':>2} {'m':>2} {'ours us':>9} {'filterpy us':>12} {'ratio':>7}  "
-        f"{'target':<15} {'step us':>8} {'step ratio':>10} {'compiled us':>11} {'ratio':>6}",
-        "-" * 99,
-    ]
+        f"{'target':<15} {'step us':>8} {'step ratio':>10}"
+    )
+    if any("compiled_us" in r for r in rows):
+        head += f" {'compiled us':>11} {'ratio':>6}"
+    lines = [head, "-" * len(head)]
     for r in rows:
         ratio = r["ratio"]
         target = TARGETS[r["filter"]]
@@ -315,14 +320,19 @@ def run_each_filter_once() -> None:
             step(z)
 
 
-def loaded_rss_mb(timeout: float = 120.0) -> float | None:
-    """RSS in MB of a fresh Python process that loads the kernels from the cache and runs
-    every filter: what a node pays for them. This process's own figure is larger when it
-    has just compiled them (the compiler's memory stays). None if the probe failed."""
+def loaded_rss_mb(timeout: float = 120.0, backend: str | None = None) -> float | None:
+    """RSS in MB of a fresh Python process that loads the kernels from the cache (on
+    ``backend``, default the environment's) and runs every filter: what a node pays for
+    them. This process's own figure is larger when it has just compiled them (the
+    compiler's memory stays). None if the probe failed."""
     probe = "from hera.bench import kalman as k; k.run_each_filter_once(); print(k.rss_mb())"
+    env = dict(os.environ)
+    if backend is not None:
+        env[ENV_VAR] = backend
     try:
         out = subprocess.run(
             [sys.executable, "-c", probe],
+            env=env,
             capture_output=True,
             text=True,
             timeout=timeout,
@@ -333,12 +343,28 @@ def loaded_rss_mb(timeout: float = 120.0) -> float | None:
         return None
 
 
+def _why(name: str, asked: str | None, warm: float) -> str:
+    """Why the bench runs on backend ``name`` (and the kernels' load time on numba)."""
+    if name == "numba":
+        return f"kernels compiled or loaded in {warm:.2f} s, cached in {cache_dir()}"
+    if asked == "numpy":
+        return "asked by --backend numpy"
+    if asked is None and os.environ.get(ENV_VAR, "").strip().lower() == "numpy":
+        return f"asked by {ENV_VAR}=numpy"
+    return "numba not installed"
+
+
 def main(argv: list[str] | None = None) -> int:
     """CLI entry point (``hera bench kalman``). Returns a process exit code."""
     ap = argparse.ArgumentParser(prog="hera bench kalman", description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=cliargs.count, default=3000, help="timed steps per case")
     ap.add_argument("--quick", action="store_true", help="few steps (200), rough numbers")
     ap.add_argument("--filter", choices=["KF", "EKF", "UKF"], action="append", dest="kinds")
+    ap.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        help=f"estimation backend to time (default: {ENV_VAR}, else auto: numba if installed)",
+    )
     args = ap.parse_args(argv if argv is not None else sys.argv[1:])
     try:
         import filterpy  # noqa: F401
@@ -354,17 +380,19 @@ def main(argv: list[str] | None = None) -> int:
     from hera.estimation import backend
 
     t0 = time.perf_counter()
-    name = backend.backend()  # compiles the kernels the first time on this machine
+    try:  # compiles the kernels the first time on this machine
+        name = backend.set_backend(args.backend) if args.backend else backend.backend()
+    except ImportError as e:
+        print(f"hera bench kalman: {e}", file=sys.stderr)
+        return 2
     warm = time.perf_counter() - t0
-    ready = f"kernels compiled or loaded in {warm:.2f} s, cached in {backend.cache_dir()}"
-    print(
-        f"hera.estimation backend: {name} ({ready if name == 'numba' else 'numba not installed'})"
-    )
-    loaded = loaded_rss_mb()
+    print(f"hera.estimation backend: {name} ({_why(name, args.backend, warm)})")
+    loaded = loaded_rss_mb(backend=name)
     print(
         "memory: a process that runs these filters "
         + (f"{loaded:.0f} MB RSS" if loaded is not None else "(probe failed)")
-        + f"; this one {rss_mb() or 0:.0f} MB (more if it compiled the kernels)"
+        + f"; this one {rss_mb() or 0:.0f} MB"
+        + (" (more if it compiled the kernels)" if name == "numba" else "")
     )
     dims = [1, 2, 3]
     compiled = name == "numba" and "EKF" in kinds
@@ -381,8 +409,13 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"Kalman filter step (predict + update), median of {steps} steps per case; ratio: "
         f"FilterPy / ours, median over turns of {CHUNK} steps each; step: the same with "
-        "step(dt, obs) (information, not the target); compiled: the EKF's model as numba "
-        "functions, CompiledExtendedKalmanFilter.fuse(dt, z)"
+        "step(dt, obs) (information, not the target)"
+        + (
+            "; compiled: the EKF's model as numba functions, CompiledExtendedKalmanFilter"
+            ".fuse(dt, z)"
+            if compiled
+            else ""
+        )
     )
     print(format_table(rows))
     met = sum(r["ratio"] >= TARGETS[r["filter"]] for r in rows)

@@ -27,6 +27,25 @@ def test_bench_runs_tiny(capsys):
     assert 0 < int(loaded[1]) <= int(loaded[2]) + 50, loaded[0]
 
 
+def test_bench_on_the_numpy_backend_says_why(use, monkeypatch, capsys):
+    """--backend numpy times the path nodes fuse on by default; the first line says which
+    backend runs and why (it said "numba not installed" when numba was only not chosen),
+    and there is no compiled column (a compiled model needs numba)."""
+    use("numba")  # restored after the test, whatever the bench switched to
+    monkeypatch.delenv(bench.ENV_VAR, raising=False)
+    assert bench.main(["--steps", "3", "--backend", "numpy", "--filter", "EKF"]) == 0
+    out = capsys.readouterr().out
+    assert out.splitlines()[0] == "hera.estimation backend: numpy (asked by --backend numpy)"
+    rows = [line.split() for line in out.splitlines() if line.startswith("EKF ")]
+    # filter n m ours filterpy ratio MISSED (>= 4x) step ratio: no compiled columns
+    assert len(rows) == 9 and {len(r) for r in rows} == {11}, out
+    assert "compiled" not in out  # no compiled models, nor their column named
+    monkeypatch.setenv(bench.ENV_VAR, "numpy")
+    assert bench.main(["--steps", "3", "--filter", "KF"]) == 0
+    out = capsys.readouterr().out
+    assert out.splitlines()[0] == f"hera.estimation backend: numpy (asked by {bench.ENV_VAR}=numpy)"
+
+
 def test_bench_without_filterpy(monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "filterpy", None)
     assert bench.main(["--quick"]) != 0
