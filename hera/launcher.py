@@ -175,6 +175,13 @@ def node_command(*args: str) -> list[str]:
     return [sys.executable, "-c", NODE_MAIN, *args]
 
 
+def module_command(module: str, *args: str) -> list[str]:
+    """``python -m MODULE ARGS`` from the installed package, not the working folder's
+    (see :data:`NODE_MAIN`)."""
+    run = f"runpy.run_module({module!r}, run_name='__main__', alter_sys=True)"
+    return [sys.executable, "-c", f"import runpy, sys; del sys.path[0]; {run}", *args]
+
+
 @dataclass
 class NodeProc:
     """One node process under the launcher's care."""

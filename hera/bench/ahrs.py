@@ -53,6 +53,7 @@ import numpy as np
 
 from hera import cliargs
 from hera.bench.machine import cpu_seconds
+from hera.launcher import node_command
 
 TARGET = 10.0
 CHUNK = 100
@@ -343,7 +344,7 @@ def node_cpu(backend: str, use: str | None, seconds: float, settle: float = 12.0
         model = CPU_MODEL.format(use=use) if use else ""
         spec.write_text(CPU_SPEC.format(tag=os.getpid(), backend=backend, model=model))
         run = Path(tmp) / "run"
-        cmd = [sys.executable, "-m", "hera", "up", str(spec), "--run-dir", str(run)]
+        cmd = node_command("up", str(spec), "--run-dir", str(run))
         log = Path(tmp) / "up.log"
         with log.open("wb") as out:
             proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=out)

@@ -325,7 +325,10 @@ def loaded_rss_mb(timeout: float = 120.0, backend: str | None = None) -> float |
     ``backend``, default the environment's) and runs every filter: what a node pays for
     them. This process's own figure is larger when it has just compiled them (the
     compiler's memory stays). None if the probe failed."""
-    probe = "from hera.bench import kalman as k; k.run_each_filter_once(); print(k.rss_mb())"
+    probe = (  # not the working folder's hera (python -c puts it first), as a node does
+        "import sys; del sys.path[0]; from hera.bench import kalman as k; "
+        "k.run_each_filter_once(); print(k.rss_mb())"
+    )
     env = dict(os.environ)
     if backend is not None:
         env[ENV_VAR] = backend

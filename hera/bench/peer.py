@@ -208,7 +208,7 @@ def _processes(
 ) -> Iterator[tuple[list[subprocess.Popen], list[subprocess.Popen]]]:
     """The spec's routers (``hera router``, each listening before the peers start) and one
     peer per node; all stopped on the way out."""
-    from hera.launcher import node_command
+    from hera.launcher import module_command, node_command
 
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
     procs: list[subprocess.Popen] = []
@@ -221,7 +221,7 @@ def _processes(
             _wait_listening(r.port, procs, time.monotonic() + 30)
         peers = [
             subprocess.Popen(
-                [sys.executable, "-m", "hera.bench.peer", str(path), node.name],
+                module_command("hera.bench.peer", str(path), node.name),
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 stderr=subprocess.DEVNULL,

@@ -319,12 +319,15 @@ def compile_shared(
 
 def _spawn_helper(share: list[str], cache: Path) -> subprocess.Popen:
     """A process that compiles ``share`` into ``cache`` (:func:`_compile_names`), importing
-    this very copy of hera (its kernels' source file is numba's cache key): the folder that
-    holds this ``hera`` goes first on the helper's path unless it is there already (an
-    installed package's site-packages is, and keeps its place after the standard library)."""
+    this very copy of hera (its kernels' source file is numba's cache key): not the working
+    folder's (``python -c`` puts it first on the path: run from a source checkout, that
+    would import the checkout's ``hera``, which refuses to load beside an install), and the
+    folder that holds this ``hera`` goes first on the helper's path unless it is there
+    already (an installed package's site-packages is, and keeps its place after the
+    standard library)."""
     root = str(Path(__file__).resolve().parents[2])
     code = (
-        "import sys; r = sys.argv[1]; r in sys.path or sys.path.insert(0, r); "
+        "import sys; del sys.path[0]; r = sys.argv[1]; r in sys.path or sys.path.insert(0, r); "
         "from hera.estimation.backend import _compile_names; "
         "_compile_names(sys.argv[2], sys.argv[3:])"
     )

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -123,3 +124,35 @@ def test_a_helper_that_hangs_is_killed_after_the_timeout(monkeypatch):
 
     failed = backend.compile_shared(NAMES, 2, lambda name: None, spawn)
     assert len(failed) == 1 and failed[0][1] != 0
+
+
+def _decoy(where) -> None:
+    """A folder like a source checkout seen from a non-editable install: its ``hera``
+    refuses to be imported (hera/__init__.py's checkout check does so)."""
+    (where / "hera").mkdir()
+    (where / "hera" / "__init__.py").write_text("raise ImportError('the decoy hera')\n")
+
+
+def test_a_compile_helper_imports_this_hera_not_the_working_folders(tmp_path, monkeypatch):
+    """``python -c`` puts the working folder first on the path: run from a source checkout
+    (the README's install and run, in the clone), the helpers imported the checkout's hera,
+    which refused, and the first compile fell back to one process (60 s instead of 25 s,
+    with "a compile helper ended with code 1")."""
+    import numba  # noqa: F401  (a test requirement: the helper imports it)
+
+    _decoy(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    # this hera's folder on the path already, as an install's site-packages is: the helper
+    # then adds nothing in front of the working folder
+    root = str(Path(backend.__file__).resolve().parents[2])
+    monkeypatch.setenv("PYTHONPATH", root)
+    helper = backend._spawn_helper([], tmp_path / "cache")  # loads the kernels' module only
+    assert helper.wait(timeout=120) == 0
+
+
+def test_the_memory_probe_of_the_kalman_bench_imports_this_hera(tmp_path, monkeypatch):
+    from hera.bench import kalman
+
+    _decoy(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    assert kalman.loaded_rss_mb(backend="numpy") is not None
