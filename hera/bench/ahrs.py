@@ -372,11 +372,29 @@ def node_cpu(backend: str, use: str | None, seconds: float, settle: float = 12.0
             proc.wait(30)
 
 
+def warm_kernels() -> bool:
+    """Compile (or load) the estimation kernels and our AHRS's in this process, into the
+    caches the nodes load from: on a fresh install the first node would compile them
+    (20-50 s) inside the measured window. False when numba is not installed."""
+    from hera.estimation import backend
+
+    try:
+        backend.set_backend("numba")
+    except ImportError:
+        return False
+    backend.warmup()
+    from hera.models.ahrs.kernels_numba import compiled
+
+    compiled()
+    return True
+
+
 def cpu_table(seconds: float) -> str:
-    """The node CPU with each AHRS at 100 Hz less the node's CPU without, per backend."""
+    """The node CPU with each AHRS at 100 Hz less the node's CPU without, per backend (numba
+    only where it is installed)."""
     head = ("backend", "node alone %", "ours %", "+ours", "e11 %", "+e11")
     lines = [f"{head[0]:<8} {head[1]:>13} {head[2]:>8} {head[3]:>7} {head[4]:>7} {head[5]:>7}"]
-    for backend in ("numba", "numpy"):
+    for backend in ("numba", "numpy") if warm_kernels() else ("numpy",):
         base = node_cpu(backend, None, seconds)
         ours = node_cpu(backend, "attitude_mekf", seconds)
         thesis = node_cpu(backend, "attitude_thesis", seconds)
