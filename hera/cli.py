@@ -8,6 +8,7 @@ import importlib
 import importlib.util
 import json
 import logging
+import os
 import sys
 import time
 
@@ -380,6 +381,11 @@ def main(argv: list[str] | None = None) -> int:
 
             check_runtime_env()
         return _dispatch(args, argv)
+    except BrokenPipeError:  # the reader left (hera measures | head): no error to tell
+        # what is still buffered would fail again at exit: send it nowhere (Python's
+        # documented way), and exit 1 as a command whose output was cut short
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
     except (LookupError, ValueError, OSError, ImportError) as e:
         for line in _problem(e).strip().splitlines() or [type(e).__name__]:
             print(f"hera {args.cmd}: {line}", file=sys.stderr)
@@ -604,10 +610,15 @@ def _cache(args: argparse.Namespace) -> int:
         print(f"{verb}: {line(e)}")
     kept = [e for e in entries if e not in chosen]
     print(
-        f"{verb} {len(chosen)} entries ({cache.megabytes(freed)}); kept {len(kept)} "
-        f"({cache.megabytes(sum(e.size for e in kept))}) in {where}"
+        f"{verb} {_count(len(chosen), 'entry', 'entries')} ({cache.megabytes(freed)}); kept "
+        f"{len(kept)} ({cache.megabytes(sum(e.size for e in kept))}) in {where}"
     )
     return 0
+
+
+def _count(n: int, one: str, many: str) -> str:
+    """``1 entry``, ``3 entries``."""
+    return f"{n} {one if n == 1 else many}"
 
 
 def _measures(args: argparse.Namespace) -> int:

@@ -295,3 +295,24 @@ def test_an_error_of_the_system_about_a_file_reads_path_then_reason(tmp_path):
         "a -> b: No such file or directory"
     )
     assert _problem(OSError("no file named")) == "no file named"
+
+
+def test_a_reader_that_leaves_early_is_no_error(tmp_path):
+    """``hera measures | head -1``: the reader closes the pipe before hera is done; hera
+    stops quietly (exit 1, as output cut short), not with "[Errno 32] Broken pipe"."""
+    import subprocess
+    import sys
+
+    from harness import cluster_env
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hera", "measures"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=cluster_env(tmp_path),
+        cwd=tmp_path,
+    )
+    proc.stdout.close()  # before hera has imported anything: its first write fails
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=60) == 1
+    assert err == "", err
