@@ -583,11 +583,8 @@ def _cache(args: argparse.Namespace) -> int:
     if args.action == "list":
         entries = cache.scan(where, here)
         if args.json:
-            rows = [
-                {k: getattr(e, k) for k in ("kind", "name", "origin", "size", "used", "gone")}
-                | {"current": e.current}
-                for e in entries
-            ]
+            keys = ("kind", "name", "origin", "size", "used", "gone", "current")
+            rows = [{k: getattr(e, k) for k in keys} for e in entries]
             print(json.dumps({"cache": str(where), "entries": rows}, indent=1))
             return 0
         sets = sum(e.kind == "kernels" for e in entries)
@@ -603,9 +600,7 @@ def _cache(args: argparse.Namespace) -> int:
         verb = "would remove" if args.dry_run else "removed"
         freed = sum(e.size for e in chosen) if args.dry_run else cache.remove(chosen)
         if not args.dry_run:
-            for m in cache.orphan_markers(where):
-                with contextlib.suppress(OSError):
-                    m.unlink()
+            cache.remove_orphan_markers(where)
     for e in chosen:
         print(f"{verb}: {line(e)}")
     kept = [e for e in entries if e not in chosen]

@@ -228,9 +228,13 @@ class _Kernels:
         count, freed = _cache.prune_gone(self.cache)
         if count:
             print(
-                f"hera.estimation: removed the kernels of {count} install"
-                f"{'s' if count > 1 else ''} that no longer exist from the cache "
-                f"({_cache.megabytes(freed)})",
+                "hera.estimation: removed from the cache the kernels of "
+                + (
+                    "1 install that no longer exists"
+                    if count == 1
+                    else f"{count} installs that no longer exist"
+                )
+                + f" ({_cache.megabytes(freed)})",
                 file=sys.stderr,
                 flush=True,
             )

@@ -293,7 +293,12 @@ def prune_gone(cache: Path) -> tuple[int, int]:
     markers; returns (sets removed, bytes freed)."""
     gone = [e for e in scan(cache) if e.gone]
     freed = remove(gone)
+    remove_orphan_markers(cache)
+    return len(gone), freed
+
+
+def remove_orphan_markers(cache: Path) -> None:
+    """Delete the :func:`orphan_markers` (what cannot be deleted stays)."""
     for m in orphan_markers(cache):
         with contextlib.suppress(OSError):
             m.unlink()
-    return len(gone), freed
