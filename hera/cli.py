@@ -506,8 +506,9 @@ def _checked_apart(argv: list[str]) -> int:
     code; it prints the problems (``hera node: ...``, exit code 2)."""
     import subprocess
 
-    main = "import sys; del sys.path[0]; from hera.cli import main; sys.exit(main())"
-    return subprocess.run([sys.executable, "-c", main, *argv, "--check-only"]).returncode
+    from hera.launcher import node_command
+
+    return subprocess.run(node_command(*argv, "--check-only")).returncode
 
 
 def _load(spec_arg: str, cert: str | None = None):

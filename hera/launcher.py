@@ -164,10 +164,18 @@ def prefer_node(samples: list[dict], node: str) -> list[dict]:
     return list(best.values())
 
 
-NODE_MAIN = "import sys; del sys.path[0]; from hera.cli import main; sys.exit(main())"
-"""What a node process runs: ``hera node ...`` from the *installed* package. ``python -m``
-and ``-c`` put the current folder first on ``sys.path``, so from a source checkout they
-would import the checkout's ``hera/`` instead; the node drops that entry first."""
+INSTALLED_ONLY = "import sys; del sys.path[0]; "
+"""The start of every ``python -c`` program hera runs in a child process: ``python -c``
+(and ``-m``) put the current folder first on ``sys.path``, so from a source checkout the
+child would import the checkout's ``hera/`` instead of the installed package (which
+refuses to load there); the child drops that entry first."""
+NODE_MAIN = INSTALLED_ONLY + "from hera.cli import main; sys.exit(main())"
+"""What a node process runs: ``hera node ...`` from the *installed* package."""
+
+
+def code_command(code: str, *args: str) -> list[str]:
+    """``python -c CODE ARGS`` with the installed hera (see :data:`INSTALLED_ONLY`)."""
+    return [sys.executable, "-c", INSTALLED_ONLY + code, *args]
 
 
 def node_command(*args: str) -> list[str]:
@@ -176,10 +184,9 @@ def node_command(*args: str) -> list[str]:
 
 
 def module_command(module: str, *args: str) -> list[str]:
-    """``python -m MODULE ARGS`` from the installed package, not the working folder's
-    (see :data:`NODE_MAIN`)."""
-    run = f"runpy.run_module({module!r}, run_name='__main__', alter_sys=True)"
-    return [sys.executable, "-c", f"import runpy, sys; del sys.path[0]; {run}", *args]
+    """``python -m MODULE ARGS`` from the installed package, not the working folder's."""
+    run = f"import runpy; runpy.run_module({module!r}, run_name='__main__', alter_sys=True)"
+    return code_command(run, *args)
 
 
 @dataclass

@@ -32,6 +32,7 @@ import numpy as np
 
 from hera import cliargs
 from hera.estimation.backend import BACKENDS, ENV_VAR, cache_dir
+from hera.launcher import code_command
 from hera.nodestatus import rss_mb
 
 TARGET = 3.0
@@ -325,16 +326,13 @@ def loaded_rss_mb(timeout: float = 120.0, backend: str | None = None) -> float |
     ``backend``, default the environment's) and runs every filter: what a node pays for
     them. This process's own figure is larger when it has just compiled them (the
     compiler's memory stays). None if the probe failed."""
-    probe = (  # not the working folder's hera (python -c puts it first), as a node does
-        "import sys; del sys.path[0]; from hera.bench import kalman as k; "
-        "k.run_each_filter_once(); print(k.rss_mb())"
-    )
+    probe = "from hera.bench import kalman as k; k.run_each_filter_once(); print(k.rss_mb())"
     env = dict(os.environ)
     if backend is not None:
         env[ENV_VAR] = backend
     try:
         out = subprocess.run(
-            [sys.executable, "-c", probe],
+            code_command(probe),
             env=env,
             capture_output=True,
             text=True,

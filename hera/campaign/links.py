@@ -21,7 +21,6 @@ import json
 import os
 import socket
 import subprocess
-import sys
 import tempfile
 import time
 import uuid
@@ -31,12 +30,11 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from hera.bus import OVERRIDES_ENV, tcp_endpoint
+from hera.launcher import code_command
 from hera.spec import ClusterSpec
 
 PLAN_FILE = "links.json"
-PROXY_MAIN = (
-    "import sys; del sys.path[0]; from hera.campaign.linkproxy import main; sys.exit(main())"
-)
+PROXY_MAIN = "from hera.campaign.linkproxy import main; sys.exit(main())"
 
 
 class Links(Protocol):
@@ -136,16 +134,14 @@ class ProxyProcess:
         ready.unlink(missing_ok=True)
         with open(self.log, "ab") as out:
             self.proc = subprocess.Popen(
-                [
-                    sys.executable,
-                    "-c",
+                code_command(
                     PROXY_MAIN,
                     str(self.plan_path),
                     "--parent-pid",
                     str(os.getpid()),
                     "--ready",
                     str(ready),
-                ],
+                ),
                 stdout=out,
                 stderr=subprocess.STDOUT,
                 stdin=subprocess.DEVNULL,

@@ -260,20 +260,22 @@ def choose(
 
 
 def remove(entries: Iterable[Entry]) -> int:
-    """Delete the entries' files and folders; returns the bytes freed (what could not be
-    deleted is left, silently: a cache entry)."""
+    """Delete the entries' files and folders; returns the bytes freed, the sizes of the
+    entries deleted whole (what could not be deleted is left, silently: a cache entry)."""
     freed = 0
     for e in entries:
+        whole = True
         for p in e.paths:
-            size = _size([p])
             try:
                 if p.is_dir():
                     shutil.rmtree(p)
                 else:
                     p.unlink()
-            except OSError:  # gone already, or not ours to delete
+            except FileNotFoundError:  # gone already
                 continue
-            freed += size
+            except OSError:  # not ours to delete
+                whole = False
+        freed += e.size if whole else 0
     return freed
 
 
