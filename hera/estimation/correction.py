@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from . import backend as _bk
+from . import unrolled
 from .consider import consider_indices, restore_considered
 from .gating import gate_threshold
 from .numerics import CovarianceError, NonFiniteInputError, finite, numerical_jacobian
@@ -457,11 +458,29 @@ def _joint_factor(S: np.ndarray, blocks: Sequence[Block]) -> np.ndarray:
 def _fast_single(
     x: np.ndarray, P: np.ndarray, b: Block, gate: float | None, joseph: bool
 ) -> tuple[np.ndarray, np.ndarray, UpdateResult] | None:
-    """Joint update of one block of 1-3 rows with as few numpy calls as possible: S is
+    """Joint update of one block of 1-3 rows with as few numpy calls as possible: at
+    n <= ``unrolled.MAX_N`` all of it on Python floats (``unrolled``); above, S is
     factorised and its factor inverted in closed form on Python floats (``small``), the
     covariance is the Joseph form as in ``_joseph_numpy``. Returns None to fall back to
-    the general path (non-finite input, S not PD, gated out) which then diagnoses."""
+    the general path (non-finite input, S not PD, gated out above MAX_N) which then
+    diagnoses."""
     _check_variances(b)
+    n = x.shape[0]
+    if n <= unrolled.MAX_N:
+        thr = _INF if gate is None else gate_threshold(gate, b.dim)
+        H = b.H
+        if H is not None and b.residual is None and H.shape[1] == n:  # y = z - H x there
+            out = unrolled.update_block(x, P, H, b.z, b.var, b.R, thr, joseph, True)
+        else:
+            H, hx = _linearise(b, x)
+            out = unrolled.update_block(x, P, H, _innovation(b, hx), b.var, b.R, thr, joseph)
+        if out is None:
+            return None
+        nis, x_new, P_new = out
+        t = None if gate is None else thr
+        if x_new is None:  # gated out: the state stays as it is
+            return x, P, UpdateResult([BlockOutcome(b.label, b.dim, nis, False, t)])
+        return x_new, P_new, UpdateResult([BlockOutcome(b.label, b.dim, nis, True, t)])
     H, hx = _linearise(b, x)
     y = _innovation(b, hx)
     G = H @ P

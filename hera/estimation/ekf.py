@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from . import backend as _bk
+from . import unrolled
 from .correction import (
     _MODE_HX,
     _WS_SMALL,
@@ -148,6 +149,11 @@ class ExtendedKalmanFilter(LinearisedFilter):
             Fj = Fj.astype(_F64)
         if Fj.shape != (n, n):
             raise ValueError(f"predict: the Jacobian F has shape {Fj.shape}, expected ({n}, {n})")
+        if n <= unrolled.MAX_N:
+            P = unrolled.predict_covariance(self._P, Fj, Qm)
+            if P is not None and finite(xn):  # else numpy names what is not finite
+                self._commit_predict(xn, P, Fj, dt)
+                return
         P = Fj @ self._P @ Fj.T
         P += P.T  # exact symmetry, then halve and add Q
         P *= 0.5

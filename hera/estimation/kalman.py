@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from . import backend as _bk
+from . import unrolled
 from .correction import (
     _WS_SMALL,
     LinearisedFilter,
@@ -168,6 +169,11 @@ class KalmanFilter(LinearisedFilter):
                 raise ValueError(f"predict: u has {um.shape[0]} values, B has {B.shape[1]} columns")
         if k is not None and self._predict_compiled(k, Fm, Qm, B, um, dt):
             return
+        if um is None and self.n <= unrolled.MAX_N:
+            out = unrolled.predict(self._x, self._P, Fm, Qm)
+            if out is not None:  # else numpy names what is not finite
+                self._commit_predict(out[0], out[1], Fm, dt)
+                return
         x = Fm @ self._x
         if um is not None:
             x = x + B @ um
