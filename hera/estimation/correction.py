@@ -40,6 +40,7 @@ from .results import (
     gaussian_log_likelihood,
     make_outcome,
     make_result,
+    single_result,
 )
 from .small import chol_small, lower_inverse, nis_small
 from .stacking import EMPTY1, SCRATCH, block_layout, grow_scratch, stack_noise
@@ -479,8 +480,8 @@ def _fast_single(
         nis, x_new, P_new = out
         t = None if gate is None else thr
         if x_new is None:  # gated out: the state stays as it is
-            return x, P, UpdateResult([BlockOutcome(b.label, b.dim, nis, False, t)])
-        return x_new, P_new, UpdateResult([BlockOutcome(b.label, b.dim, nis, True, t)])
+            return x, P, single_result(b.label, b.dim, nis, False, t)
+        return x_new, P_new, single_result(b.label, b.dim, nis, True, t)
     H, hx = _linearise(b, x)
     y = _innovation(b, hx)
     G = H @ P
@@ -564,9 +565,11 @@ class LinearisedFilter(FilterState):
     """
 
     residual_x = None  # the state's residual function (EKF); None: plain subtraction
+    _unrolled: unrolled.Memo | None = None  # None in a filter pickled before memos existed
 
     def __init__(self, x0: Any, P0: Any, *, joseph: bool = True, gate: float | None = None) -> None:
         super().__init__(x0, P0)
+        self._unrolled = unrolled.Memo()  # the predict's unrolled step for this F
         self.joseph = joseph
         self.gate = gate
 

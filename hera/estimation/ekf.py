@@ -150,7 +150,7 @@ class ExtendedKalmanFilter(LinearisedFilter):
         if Fj.shape != (n, n):
             raise ValueError(f"predict: the Jacobian F has shape {Fj.shape}, expected ({n}, {n})")
         if n <= unrolled.MAX_N:
-            P = unrolled.predict_covariance(self._P, Fj, Qm)
+            P = unrolled.predict_covariance(self._P, Fj, Qm, self._unrolled)
             if P is not None and finite(xn):  # else numpy names what is not finite
                 self._commit_predict(xn, P, Fj, dt)
                 return

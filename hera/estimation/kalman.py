@@ -170,7 +170,7 @@ class KalmanFilter(LinearisedFilter):
         if k is not None and self._predict_compiled(k, Fm, Qm, B, um, dt):
             return
         if um is None and self.n <= unrolled.MAX_N:
-            out = unrolled.predict(self._x, self._P, Fm, Qm)
+            out = unrolled.predict(self._x, self._P, Fm, Qm, self._unrolled)
             if out is not None:  # else numpy names what is not finite
                 self._commit_predict(out[0], out[1], Fm, dt)
                 return

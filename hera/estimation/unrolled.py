@@ -36,6 +36,7 @@ import numpy as np
 __all__ = [
     "MAX_M",
     "MAX_N",
+    "Memo",
     "linear_update",
     "predict",
     "predict_covariance",
@@ -252,28 +253,52 @@ def _pattern(size: tuple[Any, ...], values: list[float]) -> Pattern:
     return p
 
 
+class Memo(list):  # type: ignore[type-arg]
+    """What :func:`predict` keeps for a filter between calls: [F as a list, its step]. It
+    pickles and copies as empty (a generated function does not pickle; the step is found
+    again at the next predict), so a filter that holds one still pickles."""
+
+    __slots__ = ()
+
+    def __reduce__(self) -> tuple[type, tuple[()]]:
+        return Memo, ()
+
+
 def predict(
-    x: np.ndarray, P: np.ndarray, F: np.ndarray, Q: np.ndarray
+    x: np.ndarray, P: np.ndarray, F: np.ndarray, Q: np.ndarray, memo: list[Any] | None = None
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """(F x, F P F^T + Q) for n <= MAX_N (float64 arrays), P exactly symmetric; None when a
-    value is not finite."""
+    value is not finite. ``memo``: a :class:`Memo` the caller keeps (a filter's own);
+    while F holds the same values its step is reused without reading F's zero pattern
+    again (a list comparison, so an F changed in place is seen)."""
     n = x.shape[0]
     Fl = F.ravel().tolist()
-    fn = predict_step(n, _pattern(("F", n), Fl), True)
+    fn = _step_for(Fl, n, True, memo)
     xl, Pl = fn(x.tolist(), P.ravel().tolist(), Fl, Q.ravel().tolist())
     if not (_finite(Pl) and _finite(xl)):
         return None
     return _array(xl), _array(Pl).reshape(n, n)
 
 
-def predict_covariance(P: np.ndarray, F: np.ndarray, Q: np.ndarray) -> np.ndarray | None:
+def predict_covariance(
+    P: np.ndarray, F: np.ndarray, Q: np.ndarray, memo: list[Any] | None = None
+) -> np.ndarray | None:
     """F P F^T + Q as :func:`predict` (the EKF's covariance); None when not finite."""
     n = P.shape[0]
     Fl = F.ravel().tolist()
-    out = predict_step(n, _pattern(("F", n), Fl), False)(P.ravel().tolist(), Fl, Q.ravel().tolist())
+    out = _step_for(Fl, n, False, memo)(P.ravel().tolist(), Fl, Q.ravel().tolist())
     if not _finite(out):
         return None
     return _array(out).reshape(n, n)
+
+
+def _step_for(Fl: list[float], n: int, state: bool, memo: list[Any] | None) -> Callable[..., Any]:
+    if memo and memo[0] == Fl:
+        return memo[1]
+    fn = predict_step(n, _pattern(("F", n), Fl), state)
+    if memo is not None:
+        memo[:] = (Fl, fn)
+    return fn
 
 
 def update_block(

@@ -8,7 +8,9 @@ that is not positive definite, a covariance that goes bad) raises exactly the nu
 path's error.
 """
 
+import copy
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -285,6 +287,37 @@ def test_a_pattern_per_zero_structure_and_a_bound_on_them(monkeypatch):
     assert U._pattern(("F", n), [float(v) for v in seen]) == seen  # those seen stay sparse
     added = U.predict_step.cache_info().currsize - before
     assert added <= U.PATTERNS_PER_SIZE + 1  # the patterns seen and the dense step
+
+
+def test_an_f_changed_in_place_is_seen_and_filters_still_pickle(general):
+    """The filter's memo reuses its F's step while F holds the same values: a zero of F
+    made non-zero in place must not be left out; and the memo pickles as empty."""
+
+    def run():
+        kf = KalmanFilter([1.0, 2.0], np.eye(2), F=np.eye(2), Q=0.01)
+        kf.predict(0.1)
+        kf.F[0, 1] = 0.5  # in place: the cache of F(dt) holds this very array
+        kf.predict(0.1)
+        kf.update(Observations().add("z", [1.5], H=[[1.0, 0.0]], R=0.2))
+        return kf
+
+    general.unrolled()
+    kf = run()
+    assert len(kf._unrolled) == 2
+    general()
+    want = run()
+    np.testing.assert_allclose(kf.x, want.x, **TOL)
+    np.testing.assert_allclose(kf.P, want.P, **TOL)
+    general.unrolled()
+    for f in (kf, copy.deepcopy(kf)):
+        back = pickle.loads(pickle.dumps(f))
+        assert len(back._unrolled) == 0
+        back.predict(0.1)
+        f.predict(0.1)
+        np.testing.assert_allclose(back.P, f.P, **TOL)
+    del kf._unrolled  # a filter pickled before the memo existed: predicts without one
+    kf.predict(0.1)
+    assert kf._unrolled is None
 
 
 def test_sizes_outside_the_range_are_refused():
