@@ -20,8 +20,8 @@ The generated functions take and give flat row-major lists and never raise: a st
 meets a non-finite value or an S that is not positive definite returns None. The filters
 call them through :func:`predict`, :func:`predict_covariance` and :func:`update_block`,
 which convert numpy arrays at the edges and also return None, so the caller runs its
-numpy path, which names the culprit. Agreement with the numpy path is
-tested to 1e-12 at every supported size.
+numpy path, which names the culprit. Agreement with the numpy path is tested to 1e-12 at
+every supported size (``tests/estimation/test_unrolled.py``).
 """
 
 from __future__ import annotations
@@ -132,11 +132,11 @@ def linear_update(
     m variances (R diagonal) or, with ``full_noise``, R flat (m*m); ``thr`` the gate's
     chi-square threshold (``inf``: no gate); ``h_nz``: which entries of H may be non-zero,
     None: all; ``innovation``: the fourth argument is z, and y = z - H x is computed here
-    (a linear block). Returns (nis, None, None) when the block is
-    gated out (nis > thr), None when y or S = H P H^T + R is not finite or S is not
-    positive definite (the caller's numpy path then raises the precise error), else the
-    NIS, the updated x and the updated P (Joseph form when ``joseph``), symmetrised. P' is
-    not checked here: the caller tests its diagonal and finiteness as the numpy path does.
+    (a linear block). Returns (nis, None, None) when the block is gated out (nis > thr),
+    None when y or S = H P H^T + R is not finite or S is not positive definite (the
+    caller's numpy path then raises the precise error), else the NIS, the updated x and
+    the updated P (Joseph form when ``joseph``), symmetrised. P' is not checked here: the
+    caller tests its diagonal and finiteness as the numpy path does.
     """
     _check_n(n)
     if not 1 <= m <= MAX_M:
