@@ -71,7 +71,15 @@ def test_sonars_at_arbitrary_poses_track_within_2_cm():
                                for n, (p, d) in _tilted().items()})  # fmt: skip
 
 
-@pytest.mark.parametrize("node", ["sonar_x", "sonar_y", "sonar_z"])
+# CI budget: sonar_x in CI, the other two with ``pytest -m slow`` (the same code, 10 s)
+@pytest.mark.parametrize(
+    "node",
+    [
+        "sonar_x",
+        pytest.param("sonar_y", marks=pytest.mark.slow),
+        pytest.param("sonar_z", marks=pytest.mark.slow),
+    ],
+)
 def test_a_lost_sonar_leaves_two_axes_accurate_and_says_the_third_is_unknown(node):
     """The sonar gone for 1.5 s (a SIGKILLed node is back in about 1 s), at twelve phases of
     the motion (its own axis moving, or another): the observed axes' RMS over the loss stays
