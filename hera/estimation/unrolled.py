@@ -293,6 +293,7 @@ def predict_covariance(
 
 
 def _step_for(Fl: list[float], n: int, state: bool, memo: list[Any] | None) -> Callable[..., Any]:
+    """The predict step for F (flat ``Fl``): the memo's while F's values are the same."""
     if memo and memo[0] == Fl:
         return memo[1]
     fn = predict_step(n, _pattern(("F", n), Fl), state)

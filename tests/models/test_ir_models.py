@@ -419,6 +419,17 @@ def test_the_map_is_95_percent_right_after_60_s_and_finds_the_hot_block(seed):
     assert len(errs) >= len(maps) - 61 and max(errs) <= 1.0, max(errs)
 
 
+def _layout(hot: tuple[int, int], cold: tuple[int, int]) -> dict:
+    """The plate with a 2 x 2 hot block and a 1 x 2 cold one at these (x, y) cells."""
+    return {
+        "scenario": "ir_plate",
+        "blocks": [
+            {"x": hot[0], "y": hot[1], "w": 2, "h": 2, "hot": True},
+            {"x": cold[0], "y": cold[1], "w": 1, "h": 2},
+        ],
+    }
+
+
 # CI budget: one of each pair of physics, one layout and the warm plate in CI; the other
 # four with ``pytest -m slow`` (10 s)
 @pytest.mark.parametrize(
@@ -428,33 +439,9 @@ def test_the_map_is_95_percent_right_after_60_s_and_finds_the_hot_block(seed):
         pytest.param({"scenario": "ir_plate", "loss_time_s": 300.0}, marks=pytest.mark.slow),
         pytest.param({"scenario": "ir_plate", "alpha_cm2_s": 0.15}, marks=pytest.mark.slow),
         {"scenario": "ir_plate", "alpha_cm2_s": 0.6},
-        {
-            "scenario": "ir_plate",
-            "blocks": [
-                {"x": 1, "y": 1, "w": 2, "h": 2, "hot": True},
-                {"x": 5, "y": 4, "w": 1, "h": 2},
-            ],
-        },
-        pytest.param(
-            {
-                "scenario": "ir_plate",
-                "blocks": [
-                    {"x": 7, "y": 1, "w": 2, "h": 2, "hot": True},
-                    {"x": 3, "y": 4, "w": 1, "h": 2},
-                ],
-            },
-            marks=pytest.mark.slow,
-        ),
-        pytest.param(
-            {
-                "scenario": "ir_plate",
-                "blocks": [
-                    {"x": 1, "y": 7, "w": 2, "h": 2, "hot": True},
-                    {"x": 5, "y": 2, "w": 1, "h": 2},
-                ],
-            },
-            marks=pytest.mark.slow,
-        ),
+        _layout((1, 1), (5, 4)),
+        pytest.param(_layout((7, 1), (3, 4)), marks=pytest.mark.slow),
+        pytest.param(_layout((1, 7), (5, 2)), marks=pytest.mark.slow),
         {"scenario": "ir_plate", "hot_since_s": 300.0},
     ],
 )
