@@ -42,7 +42,7 @@ from .results import (
     make_result,
     single_result,
 )
-from .small import chol_small, lower_inverse, nis_small
+from .small import block_nis, chol_small, lower_inverse, nis_small
 from .stacking import EMPTY1, SCRATCH, block_layout, grow_scratch, stack_noise
 from .state import FilterState, check_dt, process_noise
 
@@ -374,10 +374,14 @@ def linearised_update_numpy(
 ) -> tuple[np.ndarray, np.ndarray, UpdateResult]:
     """``linearised_update`` on numpy only (the reference the compiled kernel is tested
     against; it also computes the details)."""
-    if len(blocks) == 1 and method != "sequential" and not details:
-        b = blocks[0]
-        if b.dim <= 3:
-            fast = _fast_single(x, P, b, gate, joseph)
+    if method != "sequential" and not details:
+        if len(blocks) == 1:
+            if blocks[0].dim <= 3:
+                fast = _fast_single(x, P, blocks[0], gate, joseph)
+                if fast is not None:
+                    return fast
+        elif sum(b.dim for b in blocks) <= 3:
+            fast = _fast_stacked(x, P, blocks, gate, joseph)
             if fast is not None:
                 return fast
     H, y, var, R, parts = _stack(x, blocks)
@@ -462,9 +466,9 @@ def _fast_single(
     """Joint update of one block of 1-3 rows with as few numpy calls as possible: at
     n <= ``unrolled.MAX_N`` all of it on Python floats (``unrolled``); above, S is
     factorised and its factor inverted in closed form on Python floats (``small``), the
-    covariance is the Joseph form as in ``_joseph_numpy``. Returns None to fall back to
-    the general path (non-finite input, S not PD, gated out above MAX_N) which then
-    diagnoses."""
+    covariance is the Joseph form as in ``_joseph_numpy`` (``_joint_small``). Returns None
+    to fall back to the general path (non-finite input, S not PD, gated out above MAX_N,
+    P' not valid) which then diagnoses."""
     _check_variances(b)
     n = x.shape[0]
     if n <= unrolled.MAX_N:
@@ -484,32 +488,86 @@ def _fast_single(
         return x_new, P_new, single_result(b.label, b.dim, nis, True, t)
     H, hx = _linearise(b, x)
     y = _innovation(b, hx)
-    G = H @ P
-    Sl = (G @ H.T).tolist()
-    if b.var is not None:
-        for i, v in enumerate(b.var.tolist()):
-            Sl[i][i] += v
-    else:
-        Rl = b.R.tolist()  # type: ignore[union-attr]
-        Sl = [[a + r for a, r in zip(sr, rr, strict=True)] for sr, rr in zip(Sl, Rl, strict=True)]
-    L = chol_small(Sl)
-    yl = y.tolist()
-    if L is None or not all(map(_isfinite, yl)):
+    out = _joint_small(x, P, H, y, b.var, b.R, joseph)
+    if out is None:
         return None
-    Li = lower_inverse(L)
+    x_new, P_new, _, Li, yl = out
     nis = nis_small(Li, yl)
     thr = None
     if gate is not None:
         thr = gate_threshold(gate, b.dim)
         if not nis <= thr:
             return None
+    return x_new, P_new, UpdateResult([BlockOutcome(b.label, b.dim, nis, True, thr)])
+
+
+def _joint_small(
+    x: np.ndarray,
+    P: np.ndarray,
+    H: np.ndarray,
+    y: np.ndarray,
+    var: np.ndarray | None,
+    R: np.ndarray | None,
+    joseph: bool,
+) -> tuple[np.ndarray, np.ndarray, list[list[float]], list[list[float]], list[float]] | None:
+    """The joint update of 1-3 stacked rows (H, innovation y, variances ``var`` or R) at
+    any n: S = H P H^T + R factorised and its factor inverted on Python floats (``small``),
+    K^T = L^-T (L^-1 G) with G = H P, the covariance as ``_joseph_numpy``. Returns (x', P',
+    S as nested lists, L^-1, y as a list), or None for the general path to diagnose: y or
+    S not finite, S not positive definite, P' with a diagonal entry <= 0 or not finite."""
+    G = H @ P
+    Sl = (G @ H.T).tolist()
+    if var is not None:
+        for i, v in enumerate(var.tolist()):
+            Sl[i][i] += v
+    else:
+        Rl = R.tolist()  # type: ignore[union-attr]
+        Sl = [[a + r for a, r in zip(sr, rr, strict=True)] for sr, rr in zip(Sl, Rl, strict=True)]
+    L = chol_small(Sl)
+    yl = y.tolist()
+    if L is None or not all(map(_isfinite, yl)):
+        return None
+    Li = lower_inverse(L)
     Lia = np.array(Li)
     Kt = Lia.T @ (Lia @ G)  # K^T = S^-1 G
     x_new = x + y @ Kt
-    P_new = _joseph_numpy(P, H, Kt, G, b.var, b.R, joseph)
+    P_new = _joseph_numpy(P, H, Kt, G, var, R, joseph)
     if not min(P_new.diagonal().tolist()) > 0.0 or not finite(P_new):
-        raise CovarianceError("P after update", "non-positive diagonal")
-    return x_new, P_new, UpdateResult([BlockOutcome(b.label, b.dim, nis, True, thr)])
+        return None
+    return x_new, P_new, Sl, Li, yl
+
+
+def _fast_stacked(
+    x: np.ndarray, P: np.ndarray, blocks: Sequence[Block], gate: float | None, joseph: bool
+) -> tuple[np.ndarray, np.ndarray, UpdateResult] | None:
+    """The joint update of several blocks of 2-3 rows in all (a model's sensors fused in
+    one step) as one stacked block on Python floats: unrolled at n <= ``unrolled.MAX_N``,
+    ``_joint_small`` above; each block's NIS from its diagonal sub-block of S
+    (``small.block_nis``), as ``_block_nis``. Returns None to fall back to the general
+    path (which then diagnoses, or drops the blocks a gate rejects): non-finite input, S
+    or a sub-block not positive definite, a block gated out, P' not valid."""
+    H, y, var, R, _ = _stack(x, blocks)
+    if x.shape[0] <= unrolled.MAX_N:
+        out = unrolled.update_block(x, P, H, y, var, R, _INF, joseph, with_s=True)
+        if out is None:
+            return None
+        _, x_new, P_new, Sl = out
+        yl = y.tolist()
+    else:
+        got = _joint_small(x, P, H, y, var, R, joseph)
+        if got is None:
+            return None
+        x_new, P_new, Sl, _, yl = got
+    dims = tuple(b.dim for b in blocks)
+    nis = block_nis(Sl, yl, dims)
+    if nis is None:
+        return None
+    thr: list[float | None] = [None] * len(blocks)
+    if gate is not None:
+        thr = [gate_threshold(gate, d) for d in dims]
+        if not all(v <= t for v, t in zip(nis, thr, strict=True)):  # type: ignore[operator]
+            return None
+    return x_new, P_new, outcomes(blocks, nis, thr)
 
 
 def _sequential(

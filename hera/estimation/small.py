@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["chol_small", "lower_inverse", "nis_small"]
+__all__ = ["block_nis", "chol_small", "lower_inverse", "nis_small"]
 
 _sqrt = math.sqrt
 _INF = math.inf
@@ -82,3 +82,26 @@ def nis_small(Linv: list[list[float]], y: list[float]) -> float:
 def log_det_small(L: list[list[float]]) -> float:
     """log det S = 2 sum(log L_ii) from the Cholesky factor."""
     return 2.0 * sum(math.log(L[i][i]) for i in range(len(L)))
+
+
+def block_nis(s: list[list[float]], y: list[float], dims: tuple[int, ...]) -> list[float] | None:
+    """The NIS of each of several stacked blocks (sizes ``dims``, at most 3 rows in all):
+    y_b^T S_bb^-1 y_b from the Cholesky factor of its diagonal sub-block S_bb of the joint
+    S (lower triangle read, so ragged lower rows will do); None if one is not positive
+    definite."""
+    out = []
+    o = 0
+    for d in dims:
+        if d == 1:  # |L^-1 y|^2 of a 1 x 1 S: y^2 / s
+            v = s[o][o]
+            if not 0.0 < v < _INF:
+                return None
+            out.append(y[o] * y[o] / v)
+            o += 1
+            continue
+        L = chol_small([row[o : o + d] for row in s[o : o + d]])
+        if L is None:
+            return None
+        out.append(nis_small(lower_inverse(L), y[o : o + d]))
+        o += d
+    return out

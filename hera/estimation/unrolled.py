@@ -14,7 +14,9 @@ The equations are those of the numpy path, term for term:
 * :func:`linear_update`: the joint update of ``correction`` for one block: G = H P,
   S = G H^T + R, S = L L^T (Cholesky, the positive-definiteness test), NIS = |L^-1 y|^2,
   the chi-square gate, K^T = L^-T (L^-1 G), x += K y, and the Joseph form as
-  T = P - K G, P = T + (K R - T H^T) K^T (or the short form T), symmetrised.
+  T = P - K G, P = T + (K R - T H^T) K^T (or the short form T), symmetrised. Several
+  blocks of 1-3 rows in all run as one stacked block (``with_s``: S is returned so that
+  the caller computes each block's own NIS and gate from its diagonal sub-block).
 
 The generated functions take and give flat row-major lists and never raise: a step that
 meets a non-finite value or an S that is not positive definite returns None. The filters
@@ -124,8 +126,14 @@ def predict_step(n: int, f_nz: Pattern = None, state: bool = True) -> Callable[.
 
 @functools.cache
 def linear_update(
-    n: int, m: int, full_noise: bool, joseph: bool, h_nz: Pattern = None, innovation: bool = False
-) -> Callable[..., tuple[float, list[float] | None, list[float] | None] | None]:
+    n: int,
+    m: int,
+    full_noise: bool,
+    joseph: bool,
+    h_nz: Pattern = None,
+    innovation: bool = False,
+    with_s: bool = False,
+) -> Callable[..., tuple[Any, ...] | None]:
     """``f(x, P, H, y, noise, thr) -> (nis, x', P')`` for one block of m rows on n states.
 
     x a list of n floats, P flat (n*n), H flat (m*n), y the innovation (m), ``noise`` the
@@ -136,7 +144,9 @@ def linear_update(
     None when y or S = H P H^T + R is not finite or S is not positive definite (the
     caller's numpy path then raises the precise error), else the NIS, the updated x and
     the updated P (Joseph form when ``joseph``), symmetrised. P' is not checked here: the
-    caller tests its diagonal and finiteness as the numpy path does.
+    caller tests its diagonal and finiteness as the numpy path does. ``with_s``: a fourth
+    value, the lower triangle of S as ragged rows ``[[s00], [s10, s11], ...]`` (the rows
+    of several stacked blocks: their own NIS come from its diagonal sub-blocks).
     """
     _check_n(n)
     if not 1 <= m <= MAX_M:
@@ -216,7 +226,11 @@ def linear_update(
         for k in range(i, n):
             L.append(f"    o{i}_{k} = 0.5 * (t{i}_{k} + t{k}_{i})")
     out = [f"o{min(i, k)}_{max(i, k)}" for i in range(n) for k in range(n)]
-    L.append(f"    return nis, [{', '.join(xs)}], [{', '.join(out)}]")
+    ret = f"    return nis, [{', '.join(xs)}], [{', '.join(out)}]"
+    if with_s:
+        rows = ", ".join("[" + ", ".join(f"s{i}_{j}" for j in range(i + 1)) + "]" for i in range(m))
+        ret += f", [{rows}]"
+    L.append(ret)
     return _compile("linear_update", L)
 
 
@@ -312,21 +326,25 @@ def update_block(
     thr: float,
     joseph: bool,
     innovation: bool = False,
-) -> tuple[float, np.ndarray | None, np.ndarray | None] | None:
+    with_s: bool = False,
+) -> tuple[Any, ...] | None:
     """The update of :func:`linear_update` on arrays (n <= MAX_N, m <= MAX_M rows; ``var``
     the variances of a diagonal R, else ``R``; with ``innovation``, ``y`` is z and the
     innovation z - H x is computed here): (nis, x', P'), or (nis, None, None) when gated
-    out (nis > thr). None when the numpy path must decide: y or S not finite, S not
-    positive definite, or P' with a non-finite value or a diagonal entry <= 0."""
+    out (nis > thr); ``with_s`` adds S's lower triangle (see :func:`linear_update`). None
+    when the numpy path must decide: y or S not finite, S not positive definite, or P'
+    with a non-finite value or a diagonal entry <= 0."""
     n, m = P.shape[0], y.shape[0]
     full = var is None
     noise = (R if full else var).ravel().tolist()  # type: ignore[union-attr]
     Hl = H.ravel().tolist()
-    fn = linear_update(n, m, full, joseph, _pattern(("H", n, m), Hl), innovation)
+    fn = linear_update(n, m, full, joseph, _pattern(("H", n, m), Hl), innovation, with_s)
     out = fn(x.tolist(), P.ravel().tolist(), Hl, y.tolist(), noise, thr)
     if out is None or out[1] is None:
         return out  # type: ignore[return-value]
-    nis, xl, Pl = out
-    if not (min(Pl[:: n + 1]) > 0.0 and _finite(Pl) and _finite(xl)):
+    Pl = out[2]
+    if not (min(Pl[:: n + 1]) > 0.0 and _finite(Pl) and _finite(out[1])):
         return None
-    return nis, _array(xl), _array(Pl).reshape(n, n)
+    if with_s:
+        return out[0], _array(out[1]), _array(Pl).reshape(n, n), out[3]
+    return out[0], _array(out[1]), _array(Pl).reshape(n, n)

@@ -37,8 +37,11 @@ def test_bench_on_the_numpy_backend_says_why(use, monkeypatch, capsys):
     out = capsys.readouterr().out
     assert out.splitlines()[0] == "hera.estimation backend: numpy (asked by --backend numpy)"
     rows = [line.split() for line in out.splitlines() if line.startswith("EKF ")]
-    # filter n m ours filterpy ratio MISSED (>= 4x) step ratio: no compiled columns
-    assert len(rows) == 9 and {len(r) for r in rows} == {11}, out
+    # filter n m ours filterpy ratio MISSED (>= 4x) step ratio blocks ratio: no compiled
+    assert len(rows) == 9 and {len(r) for r in rows} == {13}, out
+    # the m rows as m blocks: timed where m > 1, a dash where there is one row
+    assert all((r[-2:] == ["-", "-"]) == (r[2] == "1") for r in rows), out
+    assert all(float(r[-2]) > 0 and float(r[-1]) > 0 for r in rows if r[2] != "1"), out
     assert "compiled" not in out  # no compiled models, nor their column named
     monkeypatch.setenv(bench.ENV_VAR, "numpy")
     assert bench.main(["--steps", "3", "--filter", "KF"]) == 0
