@@ -110,7 +110,7 @@ def _run(n, dims, seed, kind, joseph=True, gate=None, consider=None):
 
 
 def _same(got, want):
-    """Equal to 1e-12; returns how many blocks were accepted."""
+    """Equal within TOL; returns how many blocks were accepted."""
     accepted = 0
     for (xa, Pa, ra), (xb, Pb, rb) in zip(got, want, strict=True):
         np.testing.assert_allclose(xa, xb, **TOL)
