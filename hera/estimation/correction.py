@@ -290,18 +290,25 @@ def _compiled_stacked(
     joseph: bool,
     method: str,
 ) -> tuple[np.ndarray, np.ndarray, UpdateResult] | None:
-    """Several blocks, or sequential updates: the general kernel ``lin_update``."""
+    """Several blocks, or sequential updates: the general kernel ``lin_update``. When every
+    block is linear (an H of the state's width, no residual function) the kernel takes z
+    and computes z - H x itself; otherwise each block is linearised here (which names a
+    block of the wrong shape) and the kernel takes the innovations."""
     n = x.shape[0]
     flags = _JOSEPH if joseph else 0
-    parts = []
-    for b in blocks:
-        Hb, hx = _linearise(b, x)
-        parts.append((Hb, _innovation(b, hx)))
-    H = np.concatenate([p[0] for p in parts])
-    z = np.concatenate([p[1] for p in parts])
+    if all(b.H is not None and b.residual is None and b.H.shape[1] == n for b in blocks):
+        H = np.concatenate([b.H for b in blocks])
+        z = np.concatenate([b.z for b in blocks])
+    else:
+        parts = []
+        for b in blocks:
+            Hb, hx = _linearise(b, x)
+            parts.append((Hb, _innovation(b, hx)))
+        H = np.concatenate([p[0] for p in parts])
+        z = np.concatenate([p[1] for p in parts])
+        flags |= _MODE_GIVEN
     m = z.shape[0]
     dims = tuple(b.dim for b in blocks)
-    flags |= _MODE_GIVEN
     var, R = stack_noise(blocks, m)
     if var is not None:
         flags |= _DIAG
