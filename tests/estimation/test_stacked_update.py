@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 import pytest
+from filter_runs import record, same_runs
 
 from hera.estimation import (
     CovarianceError,
@@ -104,22 +105,12 @@ def _run(n, dims, seed, kind, joseph=True, gate=None, consider=None):
     for step in range(40):
         kf.predict(0.1)
         zs = [3.0 * rng.normal(size=d) for d in dims]
-        res = kf.update(_blocks(dims, Hs, zs, kind, step), consider=consider)
-        out.append((kf.x.copy(), kf.P.copy(), [(o.label, o.accepted, o.nis) for o in res.outcomes]))
+        out.append(record(kf, kf.update(_blocks(dims, Hs, zs, kind, step), consider=consider)))
     return out
 
 
 def _same(got, want):
-    """Equal within TOL; returns how many blocks were accepted."""
-    accepted = 0
-    for (xa, Pa, ra), (xb, Pb, rb) in zip(got, want, strict=True):
-        np.testing.assert_allclose(xa, xb, **TOL)
-        np.testing.assert_allclose(Pa, Pb, **TOL)
-        assert np.array_equal(Pa, Pa.T)
-        assert [r[:2] for r in ra] == [r[:2] for r in rb]
-        np.testing.assert_allclose([r[2] for r in ra], [r[2] for r in rb], **TOL)
-        accepted += sum(r[1] for r in ra)
-    return accepted
+    return same_runs(got, want, TOL)
 
 
 @pytest.mark.parametrize("n", SIZES)
@@ -170,10 +161,7 @@ def test_an_ekf_fusing_two_sensors_per_step_equals_the_general_path(path):
             obs = Observations()
             obs.add("acc", [rng.normal()], h=lambda x: [x[0] * x[1]], R=0.2)  # numerical J
             obs.add("gyro", [rng.normal()], H=[[0.0, 1.0, 0.0, 0.0]], R=0.1)
-            res = ekf.update(obs)
-            out.append(
-                (ekf.x.copy(), ekf.P.copy(), [(o.label, o.accepted, o.nis) for o in res.outcomes])
-            )
+            out.append(record(ekf, ekf.update(obs)))
         return out
 
     path.fast()

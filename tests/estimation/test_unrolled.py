@@ -14,6 +14,7 @@ import pickle
 
 import numpy as np
 import pytest
+from filter_runs import record, same_runs
 
 from hera.estimation import (
     CovarianceError,
@@ -78,23 +79,13 @@ def _kf_run(n, m, seed, sparse, full_R, joseph, gate):
     out = []
     for z in zs:
         kf.predict(0.1)
-        out.append((kf.x.copy(), kf.P.copy(), None))
-        res = kf.update(Observations().add("z", 3.0 * z, H=H, R=R))
-        out.append((kf.x.copy(), kf.P.copy(), [(o.accepted, o.nis) for o in res.outcomes]))
+        out.append(record(kf))
+        out.append(record(kf, kf.update(Observations().add("z", 3.0 * z, H=H, R=R))))
     return out
 
 
 def _same(a, b):
-    accepted = 0
-    for (xa, Pa, ra), (xb, Pb, rb) in zip(a, b, strict=True):
-        np.testing.assert_allclose(xa, xb, **TOL)
-        np.testing.assert_allclose(Pa, Pb, **TOL)
-        assert np.array_equal(Pa, Pa.T)
-        if ra is not None:
-            assert [r[0] for r in ra] == [r[0] for r in rb]
-            np.testing.assert_allclose([r[1] for r in ra], [r[1] for r in rb], rtol=1e-12)
-            accepted += sum(r[0] for r in ra)
-    return accepted
+    return same_runs(a, b, TOL, {"rtol": 1e-12})
 
 
 @pytest.mark.parametrize("n", range(1, U.MAX_N + 1))
@@ -133,7 +124,7 @@ def _ekf_run(n, m, seed):
     out = []
     for z in zs:
         ekf.predict(0.1)
-        out.append((ekf.x.copy(), ekf.P.copy(), None))
+        out.append(record(ekf))
         res = ekf.update(
             Observations().add(
                 "s",
@@ -143,7 +134,7 @@ def _ekf_run(n, m, seed):
                 R=np.full(m, 0.3),
             )
         )
-        out.append((ekf.x.copy(), ekf.P.copy(), [(o.accepted, o.nis) for o in res.outcomes]))
+        out.append(record(ekf, res))
     return out
 
 
