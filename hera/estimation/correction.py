@@ -73,6 +73,7 @@ _ND = np.ndarray
 _INF = math.inf
 _F64 = np.float64
 _new = object.__new__
+_errstate = np.errstate
 
 
 def eye(n: int) -> np.ndarray:
@@ -281,6 +282,12 @@ def _kernel_inputs(b: Block, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     return H, _innovation(b, hx), hx, b.kflags | _MODE_GIVEN
 
 
+def _all_linear(blocks: Sequence[Block], n: int) -> bool:
+    """Whether every block is linear with an H of the state's width n (no residual
+    function): then z - H x is the innovation, and the update can compute it itself."""
+    return all(b.H is not None and b.residual is None and b.H.shape[1] == n for b in blocks)
+
+
 def _compiled_stacked(
     k: Any,
     x: np.ndarray,
@@ -296,7 +303,7 @@ def _compiled_stacked(
     block of the wrong shape) and the kernel takes the innovations."""
     n = x.shape[0]
     flags = _JOSEPH if joseph else 0
-    if all(b.H is not None and b.residual is None and b.H.shape[1] == n for b in blocks):
+    if _all_linear(blocks, n):
         H = np.concatenate([b.H for b in blocks])
         z = np.concatenate([b.z for b in blocks])
     else:
@@ -391,6 +398,22 @@ def linearised_update_numpy(
             fast = _fast_stacked(x, P, blocks, gate, joseph)
             if fast is not None:
                 return fast
+    with _errstate(all="ignore"):
+        return _general_update(x, P, blocks, gate, joseph, method, details)
+
+
+def _general_update(
+    x: np.ndarray,
+    P: np.ndarray,
+    blocks: Sequence[Block],
+    gate: float | None,
+    joseph: bool,
+    method: str,
+    details: bool,
+) -> tuple[np.ndarray, np.ndarray, UpdateResult]:
+    """The stacked update of any blocks on numpy (module docstring). Its caller silences
+    numpy's floating-point warnings: a NaN, inf or overflow here is always diagnosed and
+    raised as the error that names it, and a warning before that error would add nothing."""
     H, y, var, R, parts = _stack(x, blocks)
     m = y.shape[0]
     G = H @ P
@@ -403,7 +426,12 @@ def linearised_update_numpy(
     # Finite S and y imply finite z, R, H (P is PD, so inf * P_jj never cancels to finite).
     if not (finite(S) and finite(y)):
         diagnose_nonfinite(blocks, parts, P)
-        raise CovarianceError("S")  # pragma: no cover - defensive
+        raise NonFiniteInputError(
+            ", ".join(b.label for b in blocks),
+            "the innovation y or its covariance S = H P H^T + R",
+            "observation block" if len(blocks) == 1 else "observation blocks",
+            problem="overflowed (every input is finite)",
+        )
     nis = _block_nis(blocks, S, y)
     if nis is None:
         labels = ", ".join(repr(b.label) for b in blocks)
@@ -553,8 +581,22 @@ def _fast_stacked(
     (``small.block_nis``), as ``_block_nis``. Returns None to fall back to the general
     path (which then diagnoses, or drops the blocks a gate rejects): non-finite input, S
     or a sub-block not positive definite, a block gated out, P' not valid."""
-    H, y, var, R, _ = _stack(x, blocks)
-    if x.shape[0] <= unrolled.MAX_N:
+    n = x.shape[0]
+    if _all_linear(blocks, n):
+        # Linear: y = z - H x on Python floats, where a NaN or inf in H gives a NaN that
+        # the update turns into None, not a numpy warning before the general path's error.
+        xl = x.tolist()
+        yl = []
+        for b in blocks:
+            _check_variances(b)
+            for row, z in zip(b.H.tolist(), b.z.tolist(), strict=True):  # type: ignore[union-attr]
+                yl.append(z - sum([h * v for h, v in zip(row, xl, strict=True)]))
+        H = np.concatenate([b.H for b in blocks])  # type: ignore[misc]
+        y = np.array(yl)
+        var, R = stack_noise(blocks, len(yl))
+    else:
+        H, y, var, R, _ = _stack(x, blocks)
+    if n <= unrolled.MAX_N:
         out = unrolled.update_block(x, P, H, y, var, R, _INF, joseph, with_s=True)
         if out is None:
             return None

@@ -151,15 +151,16 @@ class ExtendedKalmanFilter(LinearisedFilter):
             raise ValueError(f"predict: the Jacobian F has shape {Fj.shape}, expected ({n}, {n})")
         if n <= unrolled.MAX_N:
             P = unrolled.predict_covariance(self._P, Fj, Qm, self._unrolled)
-            if P is not None and finite(xn):  # else numpy names what is not finite
-                self._commit_predict(xn, P, Fj, dt)
-                return
+            if P is None or not finite(xn):  # no numpy rerun: its warnings would come first
+                self._diagnose_predict([("f(x)", xn), ("the Jacobian F", Fj)], "F P F^T + Q")
+            self._commit_predict(xn, P, Fj, dt)
+            return
         P = Fj @ self._P @ Fj.T
         P += P.T  # exact symmetry, then halve and add Q
         P *= 0.5
         P += Qm
         if not (finite(xn) and finite(P)):  # a NaN or inf in F shows in P (P_jj > 0) or x
-            self._diagnose_predict("f(x)" if finite(Fj) else "the Jacobian F")
+            self._diagnose_predict([("f(x)", xn), ("the Jacobian F", Fj)], "F P F^T + Q")
         self._commit_predict(xn, P, Fj, dt)
 
     def step(

@@ -34,6 +34,7 @@ __all__ = ["KalmanFilter"]
 
 MatrixOrFn = np.ndarray | Callable[[float], Any]
 _INF = math.inf
+_PREDICTED = "F x + B u or F P F^T + Q"  # what overflowed when every input is finite
 _empty = np.empty
 _STEP_PREDICT = -7.0  # kernels_numba.STEP_PREDICT: the step kernel's predict part failed
 _BAD_SHAPE = -5.0
@@ -171,9 +172,10 @@ class KalmanFilter(LinearisedFilter):
             return
         if um is None and self.n <= unrolled.MAX_N:
             out = unrolled.predict(self._x, self._P, Fm, Qm, self._unrolled)
-            if out is not None:  # else numpy names what is not finite
-                self._commit_predict(out[0], out[1], Fm, dt)
-                return
+            if out is None:  # not finite: no numpy rerun (its warnings would come first)
+                self._diagnose_predict([("F", Fm), ("Q", Qm)], _PREDICTED)
+            self._commit_predict(out[0], out[1], Fm, dt)
+            return
         x = Fm @ self._x
         if um is not None:
             x = x + B @ um
@@ -182,7 +184,8 @@ class KalmanFilter(LinearisedFilter):
         P *= 0.5
         P += Qm
         if not (finite(x) and finite(P)):
-            self._diagnose_predict("F, Q or B u")
+            inputs = [("F", Fm), ("Q", Qm), ("the control input u", um), ("B", B)]
+            self._diagnose_predict(inputs, _PREDICTED)
         self._commit_predict(x, P, Fm, dt)
 
     def _predict_compiled(

@@ -40,10 +40,17 @@ class NonFiniteInputError(ValueError):
     """An observation block (or a Jacobian, or the state) holds NaN or inf. The filter
     state is untouched."""
 
-    def __init__(self, label: str, what: str, context: str = "observation block") -> None:
+    def __init__(
+        self,
+        label: str,
+        what: str,
+        context: str = "observation block",
+        *,
+        problem: str = "contains NaN or inf",
+    ) -> None:
         self.label = label
         self.what = what
-        super().__init__(f"{context} {label!r}: {what} contains NaN or inf")
+        super().__init__(f"{context} {label!r}: {what} {problem}")
 
 
 class CovarianceError(ValueError, ArithmeticError):

@@ -12,7 +12,8 @@ its values; edit the state by assignment or ``reset``, not in place.
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Sequence
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -141,14 +142,21 @@ class FilterState:
         if self.history is not None:
             self.history._updated(self, result)
 
-    def _diagnose_predict(self, what: str) -> None:
+    def _diagnose_predict(self, inputs: Sequence[tuple[str, Any]], result: str) -> NoReturn:
         """Raise the precise error of a predict whose result is not finite (the state is
-        unchanged): the state itself (NaN put in before this predict), or ``what``."""
+        unchanged): the state itself (NaN put in before this predict), else the first of
+        ``inputs`` ((name, array or None) pairs) that is not finite, else ``result``, which
+        then overflowed from finite inputs (values past 1.8e308: an unstable F, a huge P)."""
         if not finite(self._x):
             raise NonFiniteInputError("predict", "the state x (set before this predict)", "step")
         if not finite(self._P):
             raise NonFiniteInputError("predict", "the covariance P", "step")
-        raise NonFiniteInputError("predict", what, "step")
+        for name, value in inputs:
+            if value is not None and not finite(np.asarray(value, dtype=np.float64)):
+                raise NonFiniteInputError("predict", name, "step")
+        raise NonFiniteInputError(
+            "predict", result, "step", problem="overflowed (every input is finite)"
+        )
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(n={self.n}, x={self._x!r})"

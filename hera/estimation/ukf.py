@@ -273,9 +273,11 @@ class UnscentedKalmanFilter(FilterState):
             P = (D.T * sp.Wc) @ D
             P = 0.5 * (P + P.T) + Qm
             if not (finite(x) and finite(P)):
-                self._diagnose_predict("f(sigma points)")
+                self._diagnose_predict(
+                    [("f(sigma points)", Xf)], "the covariance of f(sigma points)"
+                )
         elif D is not None and not finite(x):  # the kernel checked P, x came from x_mean
-            self._diagnose_predict("x_mean(f(sigma points))")
+            self._diagnose_predict([("x_mean(f(sigma points))", x)], "x_mean")
         self._note_repair(delta)
         self._commit_predict(x, P, None, dt)
 

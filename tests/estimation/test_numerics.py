@@ -201,6 +201,62 @@ def test_nonfinite_predict_rejected():
     np.testing.assert_array_equal(kf.P, np.eye(2))
 
 
+def _bad_step(case):
+    """The step of ``case`` on a fresh 3-state filter (n <= unrolled.MAX_N), and the filter."""
+    H0, H1, big = [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]], [[1e300, 1e300, 0.0]]
+    kf = KalmanFilter(np.ones(3), np.eye(3), F=np.eye(3), Q=0.1, B=np.eye(3))
+    obs = Observations()
+    if case == "inf H, one block":
+        obs.add("b", [1.0], H=[[math.inf, 0.0, 0.0]], R=1.0)
+    elif case == "inf H, two blocks":
+        obs.add("a", [1.0], H=H0, R=1.0).add("b", [1.0], H=[[0.0, math.inf, 0.0]], R=1.0)
+    elif case == "inf H, four rows (the general path)":
+        obs.add("a", [1.0] * 3, H=np.eye(3), R=1.0).add("b", [1.0], H=[[0, 0, math.inf]], R=1.0)
+    elif case == "S overflows":
+        obs.add("b", [1.0], H=big, R=1.0)
+    elif case == "S overflows, two blocks":
+        obs.add("a", [1.0], H=H1, R=1.0).add("b", [1.0], H=big, R=1.0)
+    if len(obs):
+        return kf, lambda: kf.update(obs)
+    if case == "F P F^T overflows":
+        return kf, lambda: kf.predict(0.1, F=1e200)
+    if case == "nan u":
+        return kf, lambda: kf.predict(0.1, u=[0.0, math.nan, 0.0])
+    ekf = ExtendedKalmanFilter(np.ones(3), np.eye(3), f=lambda x, dt, u: 1e200 * x, Q=0.1)
+    if case == "nan f(x)":
+        ekf.f = lambda x, dt, u: x * math.nan
+    return ekf, lambda: ekf.predict(0.1)
+
+
+# Each names the block or step and what was wrong, with no numpy RuntimeWarning first: at
+# n <= unrolled.MAX_N and on the general path (numpy still warns above MAX_N on the
+# single-block and predict paths, and in the UKF, where silencing it would cost every step).
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+@pytest.mark.parametrize("name", ["numpy", "numba"])
+@pytest.mark.parametrize(
+    "case, match",
+    [
+        ("inf H, one block", r"^observation block 'b': H contains NaN or inf$"),
+        ("inf H, two blocks", r"^observation block 'b': H contains NaN or inf$"),
+        ("inf H, four rows (the general path)", r"^observation block 'b': H contains NaN"),
+        ("S overflows", r"^observation block 'b': the innovation y or its covariance S = H P "),
+        ("S overflows, two blocks", r"^observation blocks 'a, b': .* overflowed \(every input"),
+        ("F P F^T overflows", r"^step 'predict': F x \+ B u or F P F\^T \+ Q overflowed \(every"),
+        ("nan u", r"^step 'predict': the control input u contains NaN or inf$"),
+        ("EKF F P F^T overflows", r"^step 'predict': F P F\^T \+ Q overflowed \(every input"),
+        ("nan f(x)", r"^step 'predict': f\(x\) contains NaN or inf$"),
+    ],
+)
+def test_bad_values_and_overflows_are_named_without_numpy_warnings(use, name, case, match):
+    use(name)
+    filt, step = _bad_step(case)
+    x0, P0 = filt.x.copy(), filt.P.copy()
+    with pytest.raises(NonFiniteInputError, match=match):
+        step()
+    np.testing.assert_array_equal(filt.x, x0)
+    np.testing.assert_array_equal(filt.P, P0)
+
+
 def test_not_positive_definite_raises_clear_error():
     with pytest.raises(CovarianceError, match="P0 is not positive definite"):
         assert_positive_definite(np.array([[1.0, 2.0], [2.0, 1.0]]), "P0")
