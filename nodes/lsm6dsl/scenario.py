@@ -20,6 +20,14 @@ a_w = (g sin theta - L theta'') / cos theta (an inverted pendulum of effective l
 "parasite accelerations". The axle's travel is not tracked: position and velocity are
 relative to the axle; acceleration is absolute. The motors shake the body
 (``vibration_acc`` m/s^2, ``vibration_gyro`` rad/s, while they run).
+
+By default the wheels need no torque to turn (massless, of no size), so the board reads no
+tilt while the robot balances. ``reaction_k`` > 0 gives them the motor torque that drives
+them, tau = r (M a_w + m l theta''), which pushes back on the body (r = ``wheel_radius_m``,
+m and l the body's mass and its centre of mass over the axle, M the robot's mass plus the
+wheels' inertia I_w / r^2, ``reaction_k`` = r M / (m l)): the axle then accelerates by
+a_w = (g sin theta - (L + r) theta'') / ((1 + k) cos theta), and the board reads a share
+k / (1 + k) of the slow tilt (linearised wheeled inverted pendulum).
 """
 
 from __future__ import annotations
@@ -60,7 +68,12 @@ class Balancing(Scenario):
         sensor_m: float = 0.18,
         parked: Sequence[Sequence[float]] = (),
         seed: int = 0,
+        reaction_k: float = 0.0,
+        wheel_radius_m: float = 0.0,
     ) -> None:
+        for key, value in (("reaction_k", reaction_k), ("wheel_radius_m", wheel_radius_m)):
+            if not 0.0 <= value < math.inf:
+                raise ValueError(f"balancing {key} must be a number >= 0, got {value}")
         if still_s < 0 or rise_s <= 0 or push_every_s <= 0:
             raise ValueError("balancing still_s must be >= 0 s, rise_s and push_every_s > 0 s")
         if not 0.0 <= push_damping < 1.0:
@@ -80,6 +93,7 @@ class Balancing(Scenario):
         self.push_every, self.push = push_every_s, math.radians(push_deg)
         self.push_w, self.zeta = 2.0 * math.pi * push_hz, push_damping
         self.pendulum, self.sensor = pendulum_m, sensor_m
+        self.reaction_k, self.wheel_radius = reaction_k, wheel_radius_m
         self.parked = sorted(windows)
         self.seed = int(seed)
         self.vibration_acc = 0.2
@@ -165,7 +179,7 @@ class Balancing(Scenario):
         th, dth, ddth = self.theta(tau)
         w = max(0.0, min(1.0, self._standing(tau)[0]))
         s, c = math.sin(th), math.cos(th)
-        a_w = w * (G * s - self.pendulum * ddth) / c
+        a_w = w * (G * s - (self.pendulum + self.wheel_radius) * ddth) / ((1 + self.reaction_k) * c)
         h = self.sensor
         return Motion(
             position=(h * s, 0.0, h * c),
@@ -220,6 +234,8 @@ def _build(w: Mapping[str, Any]) -> Balancing:
         number(w, "sensor_m", 0.18),
         _parked(w),
         seed,
+        number(w, "reaction_k", 0.0),
+        number(w, "wheel_radius_m", 0.0),
     )
     return sc
 
@@ -242,6 +258,8 @@ register_scenario(
         "pendulum_m",
         "sensor_m",
         "parked",
+        "reaction_k",
+        "wheel_radius_m",
     },
     _build,
 )

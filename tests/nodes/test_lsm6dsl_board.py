@@ -103,6 +103,25 @@ def test_the_balancing_robots_accelerometer_feels_its_wheels():
     assert Balancing(parked=[[30, 40]]).segment(35.0) == "still"
 
 
+def test_wheels_that_need_torque_show_a_share_of_the_tilt():
+    k, r = 0.5, 0.04
+    sc = make_scenario({"scenario": "balancing", "reaction_k": k, "wheel_radius_m": r})
+    assert sc.theta(20.0) == Balancing().theta(20.0)  # the same robot, other wheels
+    for tau in (25.0, 31.0, 47.5):
+        th, _, ddth = sc.theta(tau)
+        m = sc.motion(tau)
+        f = gm.unrotate(m.orientation, (m.acceleration[0], 0.0, m.acceleration[2] + G))
+        # a_w = (g sin th - (L + r) th'') / ((1 + k) cos th), so along the board's x:
+        # -k / (1 + k) g sin th + (s - (L + r) / (1 + k)) th''
+        want = -k / (1 + k) * G * math.sin(th) + (sc.sensor - (sc.pendulum + r) / (1 + k)) * ddth
+        assert f[0] == pytest.approx(want, abs=1e-9)
+        assert abs(f[0] - (sc.sensor - sc.pendulum) * ddth) > 1e-3  # not the default's
+    with pytest.raises(ValueError, match="balancing reaction_k must be a number >= 0, got -0.1"):
+        make_scenario({"scenario": "balancing", "reaction_k": -0.1})
+    with pytest.raises(ValueError, match="world 'wheel_radius_m' must be a number"):
+        make_scenario({"scenario": "balancing", "wheel_radius_m": "big"})
+
+
 def test_pushes_vary_with_the_seed_and_bad_worlds_are_refused():
     a, b = (
         make_scenario({"scenario": "balancing"}),

@@ -5,11 +5,12 @@ tilt within 1 deg over the whole run. ``python tests/support/tilt_variants.py [S
 prints each variant's largest error (deg) in each world of the drift scenario (the test's
 ``DRIFT``) and the worst; ``python tests/support/tilt_variants.py search N [SEEDS]`` draws
 N settings of the filter (and of the variants' extra states) at random and prints the best
-worst world found; ``python tests/support/tilt_variants.py worlds [SEEDS]`` prints the
+worst world found; ``python tests/support/tilt_variants.py worlds [SEEDS [NAME]]`` prints the
 application's bias filter and the EKF told the true bias (``true_b``) in other drift worlds
-(sample rates, accelerometer offsets and scale errors). The figures are quoted in the
-README ("2-D tilt of a self-balancing robot"); none of these variants is the application's
-filter (:mod:`hera.models.tilt`).
+(sample rates, accelerometer offsets and scale errors, wheels whose motor torque pushes
+back on the body; NAME: only the worlds whose name holds it). The figures are quoted in
+the README ("2-D tilt of a self-balancing robot"); none of these variants is the
+application's filter (:mod:`hera.models.tilt`).
 
 Variants (all on eqs. 25-26 with the bias a state, R scaled with the rate and angular
 acceleration as in :class:`hera.models.tilt.tilt.Tilt2D`; SI units):
@@ -215,6 +216,8 @@ OTHER_WORLDS: dict[str, tuple[float, Mapping[str, Any], Mapping[str, Any]]] = {
     "12.5 Hz, 10 s on the stand": (12.5, {"still_s": 10.0}, {}),
     "acc offset 5 mg, scale 2 %": (26.0, {}, {"acc_bias_sigma": 0.005, "acc_scale_sigma": 0.02}),
     "acc trimmed (no offset)": (26.0, {}, {"acc_bias": [0.0, 0.0, 0.0]}),
+    "wheels k 0.25, r 4 cm": (26.0, {"reaction_k": 0.25, "wheel_radius_m": 0.04}, {}),
+    "wheels k 0.5, r 4 cm": (26.0, {"reaction_k": 0.5, "wheel_radius_m": 0.04}, {}),
 }
 """At 12.5 Hz the 100 calibration samples take 8 s: the default 8 s stand is too short."""
 
@@ -273,6 +276,8 @@ def main(argv: Sequence[str]) -> int:
         seeds = range(int(argv[1]) if len(argv) > 1 else 10)
         print(f"{'world':>28} {'filter':>6} " + " ".join(f"{s:>5}" for s in seeds) + "  worst")
         for name, (odr, keys, model) in OTHER_WORLDS.items():
+            if len(argv) > 2 and argv[2] not in name:
+                continue
             for label, kind, true_bias in (("bias", "bias", False), ("true_b", "ekf", True)):
                 data = worlds(seeds, odr, keys, model, true_bias)
                 errs = max_errors(lambda k=kind: Tilt2D(kind=k), data)
