@@ -581,28 +581,14 @@ def _fast_stacked(
     (``small.block_nis``), as ``_block_nis``. Returns None to fall back to the general
     path (which then diagnoses, or drops the blocks a gate rejects): non-finite input, S
     or a sub-block not positive definite, a block gated out, P' not valid."""
-    n = x.shape[0]
-    if _all_linear(blocks, n):
-        # Linear: y = z - H x on Python floats, where a NaN or inf in H gives a NaN that
-        # the update turns into None, not a numpy warning before the general path's error.
-        xl = x.tolist()
-        yl = []
-        for b in blocks:
-            _check_variances(b)
-            for row, z in zip(b.H.tolist(), b.z.tolist(), strict=True):  # type: ignore[union-attr]
-                yl.append(z - sum([h * v for h, v in zip(row, xl, strict=True)]))
-        H = np.concatenate([b.H for b in blocks])  # type: ignore[misc]
-        y = np.array(yl)
-        var, R = stack_noise(blocks, len(yl))
-    else:
-        H, y, var, R, _ = _stack(x, blocks)
-    if n <= unrolled.MAX_N:
-        out = unrolled.update_block(x, P, H, y, var, R, _INF, joseph, with_s=True)
+    if x.shape[0] <= unrolled.MAX_N:
+        Hl, yl, noise, full = _rows(x, blocks)
+        out = unrolled.update_rows(x, P, Hl, yl, noise, full, _INF, joseph, with_s=True)
         if out is None:
             return None
         _, x_new, P_new, Sl = out
-        yl = y.tolist()
     else:
+        H, y, var, R, _ = _stack(x, blocks)
         got = _joint_small(x, P, H, y, var, R, joseph)
         if got is None:
             return None
@@ -617,6 +603,31 @@ def _fast_stacked(
         if not all(v <= t for v, t in zip(nis, thr, strict=True)):  # type: ignore[operator]
             return None
     return x_new, P_new, outcomes(blocks, nis, thr)
+
+
+def _rows(x: np.ndarray, blocks: Sequence[Block]) -> tuple[list, list, list, bool]:
+    """The blocks stacked on Python floats, as ``_stack``: H row-major, the innovations,
+    the noise (the variances, or the block-diagonal R row-major when a block has a full R)
+    and whether it is full. A linear block's z - H x is computed here, where a NaN or inf
+    in H gives a NaN that the update refuses, not a numpy warning first."""
+    n = x.shape[0]
+    xl = x.tolist()
+    Hl: list[float] = []
+    yl: list[float] = []
+    for b in blocks:
+        _check_variances(b)
+        H = b.H
+        if H is not None and b.residual is None and H.shape[1] == n:
+            for row, z in zip(H.tolist(), b.z.tolist(), strict=True):
+                Hl += row
+                yl.append(z - sum([h * v for h, v in zip(row, xl, strict=True)]))
+        else:
+            H, hx = _linearise(b, x)
+            Hl += H.ravel().tolist()
+            yl += _innovation(b, hx).tolist()
+    if all(b.var is not None for b in blocks):
+        return Hl, yl, [v for b in blocks for v in b.var.tolist()], False  # type: ignore[union-attr]
+    return Hl, yl, stack_noise(blocks, len(yl))[1].ravel().tolist(), True  # type: ignore[union-attr]
 
 
 def _sequential(

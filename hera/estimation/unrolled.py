@@ -334,12 +334,30 @@ def update_block(
     out (nis > thr); ``with_s`` adds S's lower triangle (see :func:`linear_update`). None
     when the numpy path must decide: y or S not finite, S not positive definite, or P'
     with a non-finite value or a diagonal entry <= 0."""
-    n, m = P.shape[0], y.shape[0]
     full = var is None
     noise = (R if full else var).ravel().tolist()  # type: ignore[union-attr]
     Hl = H.ravel().tolist()
+    return update_rows(x, P, Hl, y.tolist(), noise, full, thr, joseph, innovation, with_s)
+
+
+def update_rows(
+    x: np.ndarray,
+    P: np.ndarray,
+    Hl: list[float],
+    yl: list[float],
+    noise: list[float],
+    full: bool,
+    thr: float,
+    joseph: bool,
+    innovation: bool = False,
+    with_s: bool = False,
+) -> tuple[Any, ...] | None:
+    """:func:`update_block` with the rows already on Python floats: H row-major ``Hl``,
+    ``yl`` (y, or z with ``innovation``), ``noise`` the variances or, when ``full``, R
+    row-major. Returns as :func:`update_block`."""
+    n, m = P.shape[0], len(yl)
     fn = linear_update(n, m, full, joseph, _pattern(("H", n, m), Hl), innovation, with_s)
-    out = fn(x.tolist(), P.ravel().tolist(), Hl, y.tolist(), noise, thr)
+    out = fn(x.tolist(), P.ravel().tolist(), Hl, yl, noise, thr)
     if out is None or out[1] is None:
         return out  # type: ignore[return-value]
     Pl = out[2]
