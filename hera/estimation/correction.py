@@ -282,12 +282,6 @@ def _kernel_inputs(b: Block, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     return H, _innovation(b, hx), hx, b.kflags | _MODE_GIVEN
 
 
-def _all_linear(blocks: Sequence[Block], n: int) -> bool:
-    """Whether every block is linear with an H of the state's width n (no residual
-    function): then z - H x is the innovation, and the update can compute it itself."""
-    return all(b.H is not None and b.residual is None and b.H.shape[1] == n for b in blocks)
-
-
 def _compiled_stacked(
     k: Any,
     x: np.ndarray,
@@ -303,7 +297,7 @@ def _compiled_stacked(
     block of the wrong shape) and the kernel takes the innovations."""
     n = x.shape[0]
     flags = _JOSEPH if joseph else 0
-    if _all_linear(blocks, n):
+    if all(b.H is not None and b.residual is None and b.H.shape[1] == n for b in blocks):
         H = np.concatenate([b.H for b in blocks])
         z = np.concatenate([b.z for b in blocks])
     else:
