@@ -3,10 +3,13 @@ path (unrolled, stacked) to the path it stands in for."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
+import pytest
+
+from hera.estimation import CovarianceError, NonFiniteInputError
 
 
 def record(filt: Any, result: Any = None) -> tuple[np.ndarray, np.ndarray, list | None]:
@@ -38,3 +41,13 @@ def same_runs(
             np.testing.assert_allclose(nis_a, nis_b, **(tol if nis_tol is None else nis_tol))
             accepted += sum(r[1] for r in ra)
     return accepted
+
+
+def error_of(run: Callable[[], Any]) -> tuple[type, str]:
+    """The (type, message) of the error ``run()`` raises, to compare two paths' errors;
+    fails the test when it raises none."""
+    try:
+        run()
+    except (NonFiniteInputError, CovarianceError, ValueError) as e:
+        return type(e), str(e)
+    pytest.fail("no error")
