@@ -41,6 +41,24 @@ def check_chunk(value: str, what: str) -> str:
     return value
 
 
+_GLOB = re.compile(r"^[A-Za-z0-9_.\-*]+$")
+
+
+def glob_chunk(pattern: str, what: str) -> str:
+    """The Zenoh key-expression chunk of a name pattern with shell-like ``*`` wildcards:
+    ``*`` alone (any name) stands, a ``*`` within a name (``obs*``, ``*_1``, ``t*k``)
+    becomes Zenoh's in-chunk wildcard ``$*`` (several in a row as one). ValueError naming
+    ``what`` for anything else a name could not hold (``/``, ``$``, ``?``, ``#``, space)."""
+    if not isinstance(pattern, str) or not _GLOB.match(pattern) or len(pattern) > MAX_CHUNK:
+        shown = pattern if not isinstance(pattern, str) or len(pattern) <= 80 else pattern[:80]
+        raise ValueError(
+            f"invalid {what} {shown!r}: use letters, digits, '_', '.', '-' and '*' wildcards"
+        )
+    if "*" not in pattern or pattern.strip("*") == "":
+        return "*" if "*" in pattern else pattern
+    return re.sub(r"\*+", "$*", pattern)
+
+
 @dataclass(frozen=True)
 class Keys:
     """Key expression builders for one cluster."""
@@ -61,8 +79,7 @@ class Keys:
         """The data key expression of a read: ``name``, ``prefix*`` (every name starting
         with prefix) or ``name/node`` (one sender only)."""
         name, _, node = name.partition("/")
-        pattern = f"{name[:-1]}$*" if name.endswith("*") else name
-        return self.data(pattern, node or "*")
+        return self.data(glob_chunk(name, "name"), node or "*")
 
     def parse_data(self, key: str) -> tuple[str, str]:
         """Return ``(name, node)`` of a data key; ValueError if ``key`` is not one."""

@@ -2,11 +2,11 @@
 ``ros2 topic echo`` / ``hz`` habits).
 
 A stream is a ``(name, node)`` pair published on ``hera/<cluster>/data/<name>/<node>``. A
-stream argument is ``NAME`` (every node), ``NAME/NODE``, or either with Zenoh wildcards
-(``*``). :class:`RateStats` keeps what ``hz`` prints for one stream: the rate, the jitter of
-the intervals (their standard deviation, on the receiver's clock and on the measurement
-times) and the gaps (intervals longer than :data:`GAP_FACTOR` times the median interval,
-and samples lost by seq).
+stream argument is ``NAME`` (every node), ``NAME/NODE``, or either with ``*`` wildcards
+(``obs*``, ``*/n1``). :class:`RateStats` keeps what ``hz`` prints for one stream: the rate,
+the jitter of the intervals (their standard deviation, on the receiver's clock and on the
+measurement times) and the gaps (intervals longer than :data:`GAP_FACTOR` times the median
+interval, and samples lost by seq).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hera import wire
-from hera.keys import Keys
+from hera.keys import Keys, glob_chunk
 
 GAP_FACTOR = 2.0
 """An interval longer than this many median intervals is a gap."""
@@ -34,7 +34,8 @@ def stream_selector(keys: Keys, stream: str) -> str:
     parts = stream.strip("/").split("/")
     if not stream.strip("/") or len(parts) > 2 or not all(parts):
         raise ValueError(f"stream {stream!r}: give NAME or NAME/NODE (wildcards '*' allowed)")
-    return keys.data(parts[0], parts[1] if len(parts) == 2 else "*")
+    node = glob_chunk(parts[1], "node") if len(parts) == 2 else "*"
+    return keys.data(glob_chunk(parts[0], "stream name"), node)
 
 
 def stream_note(spec: Any, stream: str) -> str | None:

@@ -257,6 +257,18 @@ def test_echo_hz_and_store_read_the_bus(train):
         "hera hz: no node 'nav_9' in the spec (nodes: nav_1, sonar_1, sonar_2, computer)"
     )
 
+    # a '*' within a name (the README's `hera hz 'track_*'`) reads every such stream
+    models = train.hera("hz", "track_*", "--duration", "2", "--json")
+    assert models.returncode == 0, models.stderr
+    seen = json.loads(models.stdout.splitlines()[-1])
+    assert seen and all(k.startswith("track_") for k in seen), seen
+    assert {k.split("/")[1] for k in seen} == {"computer", "nav_1"}, seen
+    one = train.hera("echo", "gyro_*/comp*", "--count", "1", "--json")
+    assert one.returncode == 0, one.stderr
+    assert json.loads(one.stdout)["name"] == "gyro_v", one.stdout
+    bad = train.hera("echo", "nav?", "--count", "1")
+    assert bad.returncode == 2 and "invalid stream name 'nav?'" in bad.stderr, bad.stderr
+
     # hz counts what nav_1 published: its rate is the node's own (over the command's run,
     # by its seq), whatever a loaded machine lets the node keep of its 100 Hz
     seq = lambda: train.cluster.status("nav_1")["measures"]["nav"]["seq"]  # noqa: E731

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import sys
 
 import jsonschema
@@ -57,6 +58,17 @@ def test_stream_arguments():
     assert stream_selector(keys, "nav/n1") == "hera/c/data/nav/n1"
     with pytest.raises(ValueError, match="NAME or NAME/NODE"):
         stream_selector(keys, "a/b/c")
+    # shell-like '*' within a name is Zenoh's in-chunk '$*' (a bare '*' inside one is refused
+    # by Zenoh: `hera hz 'track_*'` failed with "'*' may only be preceded by '/' or '$'")
+    assert stream_selector(keys, "track_*") == "hera/c/data/track_$*/*"
+    assert stream_selector(keys, "*_v/comp*") == "hera/c/data/$*_v/comp$*"
+    assert stream_selector(keys, "a**b/*") == "hera/c/data/a$*b/*"
+    assert stream_selector(keys, "**") == "hera/c/data/*/*"
+    for bad in ("nav?", "na$*", "a b", "x#"):
+        with pytest.raises(ValueError, match=re.escape(f"invalid stream name {bad!r}")):
+            stream_selector(keys, bad)
+    with pytest.raises(ValueError, match="invalid node 'n 1'"):
+        stream_selector(keys, "nav/n 1")
     line = format_sample({"name": "x", "node": "n", "seq": 3, "t": 0.0, "values": [1.5]}, ["v [m]"])
     assert line.endswith("v [m]=1.5") and "seq=3" in line
 
