@@ -207,13 +207,19 @@ def _parser() -> argparse.ArgumentParser:
         "measure",
         nargs="?",
         help="the measure (crash, hang, stop, start), the board fault (board: stuck, dropout, "
-        "spikes, bias, disconnect, clear), or the value (clock: s, loss: share, delay: ms)",
+        "spikes, bias, disconnect, field, clear; the node's 'board' verb lists its boards), or "
+        "the value (clock: s, loss: share, delay: ms)",
     )
     inj.add_argument("--board", help="board: the board id, <node>/<board>")
     inj.add_argument(
         "--for", dest="seconds", type=cliargs.positive, help="board: how long it lasts, s"
     )
-    inj.add_argument("--param", action="append", help="board: a fault parameter KEY=VALUE")
+    inj.add_argument(
+        "--param",
+        action="append",
+        help="board: a fault parameter KEY=VALUE, the value JSON or text (field needs "
+        "sensor=S and value=[x,y,z])",
+    )
     inj.add_argument("--peers", help="network faults: only the links to these nodes (a,b)")
     inj.add_argument(
         "--jitter", type=cliargs.non_negative, default=0.0, help="delay: +/- this much, ms"

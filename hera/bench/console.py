@@ -181,12 +181,30 @@ def measure(spec_path: Path, seconds: float, streams: int) -> dict[str, float]:
     return out
 
 
+def check_tools() -> None:
+    """ImportError, in one sentence saying what to install, when Playwright, the console
+    extra (the view's server) or the Chromium binary is missing."""
+    import importlib.util
+
+    missing = [m for m in ("playwright", "aiohttp") if importlib.util.find_spec(m) is None]
+    chromium = os.environ.get("HERA_CHROMIUM", "/usr/bin/chromium")
+    if not os.access(chromium, os.X_OK):
+        missing.append(f"a Chromium at {chromium}")
+    if missing:
+        raise ImportError(
+            f"the console benchmark drives the web view in a headless Chromium and lacks "
+            f"{', '.join(missing)}: pip install 'hera-fusion[console]' playwright, and "
+            "apt-get install chromium (or set HERA_CHROMIUM to a Chromium binary)"
+        )
+
+
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="hera bench console", description=__doc__.split("\n")[0])
     p.add_argument(
         "--seconds", type=cliargs.positive, default=10.0, help="length of each measurement"
     )
     args = p.parse_args(argv)
+    check_tools()
     spec = observers_spec()
     slow = measure(spec, args.seconds, 20)
     with tempfile.TemporaryDirectory() as tmp:

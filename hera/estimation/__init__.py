@@ -16,14 +16,15 @@ Angles and quaternions: a block's ``residual`` (``angle_residual``) and UKF ``me
 y, S, K and the log-likelihood.
 
 Backends: with numba installed (``hera-fusion[fast]``) the hot path runs compiled kernels,
-else numpy; ``HERA_ESTIMATION_BACKEND=numpy|numba|auto`` or ``set_backend`` chooses,
-``active_backend()`` tells, ``warmup()`` compiles/loads the kernels up front. A model
-written as numba functions runs its whole EKF step in one compiled call:
-``CompiledExtendedKalmanFilter(x0, P0, compile_model(f, F, h, H), Q, R).fuse(dt, z)``.
+else numpy; ``HERA_ESTIMATION_BACKEND=numpy|numba|auto``, ``set_backend`` (now) or
+``prefer`` (at the first filter) chooses, ``active_backend()`` tells, ``warmup()``
+compiles/loads the kernels up front. A model written as numba functions runs its whole EKF
+step in one compiled call: ``CompiledExtendedKalmanFilter(x0, P0, compile_model(f, F, h, H),
+Q, R).fuse(dt, z)``.
 """
 
 from . import backend
-from .backend import active_backend, set_backend, warmup
+from .backend import active_backend, prefer, set_backend, warmup
 from .compiled import CompiledExtendedKalmanFilter, CompiledModel, compile_model
 from .correction import linearised_update
 from .ekf import ExtendedKalmanFilter
@@ -66,6 +67,7 @@ __all__ = [
     "compile_model",
     "active_backend",
     "backend",
+    "prefer",
     "set_backend",
     "warmup",
     "Block",

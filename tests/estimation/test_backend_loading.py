@@ -57,6 +57,13 @@ def test_prefer_refuses_an_unknown_name_and_changes_nothing_now():
         backend.prefer("cuda")
 
 
+def test_the_backend_choices_the_readme_names_are_public():
+    import hera.estimation as est
+
+    for name in ("set_backend", "prefer", "warmup", "active_backend"):
+        assert getattr(est, name) is getattr(backend, name) and name in est.__all__
+
+
 PROBE = """
 import sys, types
 from hera.node import Node
