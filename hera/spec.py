@@ -17,6 +17,7 @@ each, naming the file, the table and the key (:class:`SpecError`).
 from __future__ import annotations
 
 import json
+import math
 import sys
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -88,6 +89,64 @@ def _port_base(v: Any) -> int:
 
 
 PORT_BASE = Kind("0 or a port in [1024, 65000)", _port_base)
+
+SYNC_LEASE_MS_MIN, SYNC_LEASE_MS_MAX = 20, 1650
+"""The range of ``[cluster] sync_lease_ms``. The top is the sync service's clock condition
+(``hera.sync.election.Timing``: 2 rho (L + D) / (1 - rho) <= m with its margin m = 50 ms,
+drift rho = 1 % and the longest slot lease D = L / 2): a longer leader lease L leaves the
+margin too small for the clocks' drift, and the service could not start."""
+SLOT_SLACK = 0.25
+"""The share of a synchronised step added to the lease it asks for (:func:`slot_lease`)."""
+SLOT_SLACK_MIN = 0.005
+"""The least slack (s) added to a synchronised step's lease (:func:`slot_lease`)."""
+
+
+def slot_lease(slot: float) -> float:
+    """The sync lease a synchronised step of ``slot`` s asks for: the step plus a slack for
+    latency (25 % of the step, at least 5 ms), which absorbs the grant's trip back and the
+    scheduling delay before firing. The one formula of the client (``hera.sync``) and of
+    the spec check."""
+    return slot + max(SLOT_SLACK_MIN, SLOT_SLACK * slot)
+
+
+def max_slot_lease(sync_lease_ms: int) -> float:
+    """The longest slot lease (s) a sync leader grants with ``[cluster] sync_lease_ms``:
+    half the leader lease, so a slot fits in a freshly renewed lease."""
+    return sync_lease_ms / 2000.0
+
+
+def longest_slot(max_lease: float) -> float:
+    """The longest ``slot`` (s, to 0.1 ms) whose :func:`slot_lease` is at most
+    ``max_lease`` s (0 if none is)."""
+    if max_lease <= SLOT_SLACK_MIN * (1 + 1 / SLOT_SLACK):  # the slack is its minimum
+        slot = max_lease - SLOT_SLACK_MIN
+    else:
+        slot = max_lease / (1 + SLOT_SLACK)
+    shown = round(max(slot, 0.0), 4)
+    while shown > 0 and slot_lease(shown) > max_lease:
+        shown = round(shown - 1e-4, 4)
+    return shown
+
+
+def slot_problem(slot: float, sync_lease_ms: int) -> str | None:
+    """Why a synchronised step of ``slot`` s cannot get a slot with ``[cluster]
+    sync_lease_ms`` (one sentence, no subject), or None if it can."""
+    lease = slot_lease(slot)
+    if lease <= max_slot_lease(sync_lease_ms):
+        return None
+    longest = longest_slot(max_slot_lease(sync_lease_ms))
+    needed = math.ceil(round(lease * 2000.0, 6))
+    fix = (
+        f"shorten the slot or raise [cluster] sync_lease_ms to {needed} or more"
+        if needed <= SYNC_LEASE_MS_MAX
+        else "shorten the slot"
+    )
+    return (
+        f"slot {slot:g} s is too long for [cluster] sync_lease_ms = {sync_lease_ms}: its "
+        f"lease ({lease:.4g} s: the slot plus {SLOT_SLACK:.0%}, at least "
+        f"{SLOT_SLACK_MIN * 1000:g} ms) must fit in half the sync lease, so the longest slot "
+        f"is {longest:g} s; {fix}"
+    )
 
 
 @dataclass(frozen=True)
@@ -178,8 +237,9 @@ class ClusterSpec:
     )
     sync_lease_ms: int = setting(
         300,
-        number(20, 60_000, integer=True),
-        "sync leader lease; the longest sync slot is half of it",
+        number(SYNC_LEASE_MS_MIN, SYNC_LEASE_MS_MAX, integer=True),
+        "sync leader lease; a synchronised measure's slot plus 25 % (at least 5 ms) must "
+        "fit in half of it: slot <= 0.12 s at 300",
         table="cluster",
     )
     multicast_scouting: bool = setting(
@@ -466,10 +526,50 @@ def from_resolved(raw: dict[str, Any]) -> ClusterSpec:
     return ClusterSpec(nodes=nodes, routers=routers, **raw)
 
 
+def _broken(table: Table, raw: Any, parsed: dict[str, Any]) -> set[str]:
+    """The settings of ``table`` that ``raw`` gives but that did not parse (left out of
+    ``parsed``); all of them if ``raw`` is not a table."""
+    if raw is None:
+        return set()
+    if not isinstance(raw, dict):
+        return {s.target for s in table.settings}
+    return {s.target for s in table.settings if s.key in raw and s.target not in parsed}
+
+
+def _stand_in(
+    settings: dict[str, Any], name: str, bad: set[str], built: MeasureSpec | None
+) -> MeasureSpec | None:
+    """What the plugin checks of a spec with problems check in place of the measure called
+    ``name`` of ``settings``: ``built`` (the measure) if all its settings parsed, else one
+    without the settings whose checks depend on a broken (``bad``) or conflicting value;
+    None if its name or arguments are broken (every check names it, or reads them)."""
+    if bad & {"name", "args"}:
+        return None
+    if built is not None and not bad:
+        return built
+    keep = {**settings, "name": name}
+    if built is None:  # a rule between thread, offset, sync and period broken
+        keep.pop("thread", None)
+        keep.pop("offset", None)
+        if keep.get("sync"):
+            keep["sync"] = False
+    if bad & {"period", "sync"}:
+        keep.pop("offset", None)  # checked against the period and sync
+    if bad & {"sync", "sync_group"}:
+        keep["sync"] = False  # whether its group is hosted is not known
+    try:
+        return MeasureSpec(**keep)
+    except ValueError:
+        return None
+
+
 def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
     """Validate a spec given as a dict (the parsed TOML) and build a :class:`ClusterSpec`.
 
-    Raises :class:`SpecError` listing every problem found.
+    Raises :class:`SpecError` listing every problem found: with a problem anywhere, those
+    the plugin checks (:func:`hera.preflight.spec_problems`) find in what could be parsed
+    too, so that one table's problem hides no other's; only the checks that depend on a
+    broken value are skipped.
     """
     problems: list[str] = []
     where = lambda table: f"{source}: {table}"  # noqa: E731
@@ -487,8 +587,10 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
     defaults = DEFAULTS_TABLE.parse(
         data.get("defaults"), where("[defaults]"), problems, defaults=False
     )
+    defaults_bad = _broken(DEFAULTS_TABLE, data.get("defaults"), defaults)
     world = data.get("world", {})
-    if not isinstance(world, dict):
+    world_bad = not isinstance(world, dict)
+    if world_bad:
         problems.append(f"{source}: [world] must be a table")
         world = {}
 
@@ -497,10 +599,12 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
         problems.append(f"{source}: [[nodes]]: a spec needs at least one [[nodes]] entry")
         node_tables = []
     nodes: list[dict[str, Any]] = []
+    hosts_known = True  # every node's sync_hosts parsed: whether a group is hosted is known
     for i, raw in enumerate(node_tables, start=1):
         label = raw.get("name") if isinstance(raw, dict) else None
         here = where(f"[[nodes]] #{i}" + (f" ({label})" if isinstance(label, str) else ""))
         n = NODE_TABLE.parse(raw, here, problems)
+        hosts_known &= "name" in n and not _broken(NODE_TABLE, raw, n) & {"sync_hosts"}
         if "name" in n:
             n.pop("measures", None)
             n["_where"], n["_raw_measures"] = here, (raw or {}).get("measures", [])
@@ -510,13 +614,16 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
         problems.append(f"{source}: [[nodes]]: two nodes are called {dup!r}")
 
     per_node: dict[str, list[MeasureSpec]] = {n: [] for n in names}
+    # what the plugin checks see of each node's measures when the spec has problems
+    checkable: dict[str, list[MeasureSpec]] = {n: [] for n in names}
 
-    def measures_of(raw: Any, here: str, placement: bool) -> list[MeasureSpec]:
+    def measures_of(raw: Any, here: str, placement: bool, node: str) -> list[MeasureSpec]:
         if not isinstance(raw, dict):
             problems.append(f"{here}: must be a table")
             return []
         own = {k: v for k, v in raw.items() if not (placement and k in PLACEMENT.by_key)}
         settings = MEASURE_TABLE.parse(own, here, problems, defaults=False)
+        bad = _broken(MEASURE_TABLE, own, settings) | (defaults_bad - settings.keys())
         if placement:
             count = PLACEMENT.parse(
                 {k: v for k, v in raw.items() if k == "count"}, here, problems
@@ -530,10 +637,15 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
         out = []
         for i in range(1, count + 1):
             nm = base.replace("{i}", str(i))
+            built: MeasureSpec | None = None
             try:
-                out.append(MeasureSpec(**{**merged, "name": nm}))
+                built = MeasureSpec(**{**merged, "name": nm})
+                out.append(built)
             except ValueError as e:
                 problems.append(f"{here}: {e}")
+            stand_in = _stand_in(merged, nm, bad, built)
+            if stand_in is not None:
+                checkable[node].append(stand_in)
         return out
 
     for n in nodes:
@@ -544,7 +656,7 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
             continue
         for j, m in enumerate(raw_ms, start=1):
             here = where(f"[[nodes.measures]] #{j} of {n['name']}")
-            per_node[n["name"]].extend(measures_of(m, here, placement=False))
+            per_node[n["name"]].extend(measures_of(m, here, False, n["name"]))
     top = data.get("measures", [])
     if not isinstance(top, list):
         problems.append(f"{source}: [[measures]] must be a list of tables")
@@ -564,7 +676,7 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
             )
             continue
         for t in targets:
-            per_node[t].extend(measures_of(m, here, placement=True))
+            per_node[t].extend(measures_of(m, here, True, t))
 
     built = []
     base_port = cluster.get("base_port", 0)
@@ -621,7 +733,30 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
     if log_node is not None and log_node not in per_node:
         problems.append(f"{source}: [logging]: node {log_node!r} is not a node of the spec")
     if problems:
-        raise SpecError(problems)
+        # the plugin checks (hera.preflight) of what could be parsed, so that a problem in
+        # one table hides none of the others; those depending on a broken value are skipped
+        from hera.preflight import spec_problems
+
+        partial = ClusterSpec(
+            nodes=tuple(
+                NodeSpec(
+                    name,
+                    sync_hosts=next(n.get("sync_hosts", ()) for n in nodes if n["name"] == name),
+                    measures=tuple(
+                        m if hosts_known else replace(m, sync=False) for m in checkable[name]
+                    ),
+                )
+                for name in dict.fromkeys(names)
+            ),
+            world=dict(world),
+            source=source,
+            # a broken lease checks no slot (the longest lease grants every slot it can)
+            sync_lease_ms=cluster.get("sync_lease_ms", SYNC_LEASE_MS_MAX),
+        )
+        found = spec_problems(partial)
+        if world_bad:
+            found = [p for p in found if not p.startswith(f"{source}: [world]:")]
+        raise SpecError(list(dict.fromkeys([*problems, *found])))
     return ClusterSpec(
         nodes=tuple(built),
         routers=tuple(routers),

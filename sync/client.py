@@ -18,6 +18,7 @@ from typing import Any, TypeVar
 import zenoh
 
 from hera.keys import Keys
+from hera.spec import longest_slot, slot_lease
 from hera.sync import clock as sync_clock
 from hera.sync.election import Timing
 from hera.sync.protocol import AcquireRequest, GrantReply, ProtocolError, Release
@@ -163,8 +164,9 @@ def slot_duration(slot_s: float) -> float:
 
     The slack (25 % of the step, at least 5 ms) absorbs the grant's trip back and the
     scheduling delay before firing; a grant that arrives later than that is given back.
+    The formula is :func:`hera.spec.slot_lease`, which the spec check uses too.
     """
-    return slot_s + max(0.005, 0.25 * slot_s)
+    return slot_lease(slot_s)
 
 
 class KnownTerms:
@@ -225,7 +227,9 @@ class SyncClient:
         if not 0 < duration <= self.timing.max_slot:
             raise ValueError(
                 f"sync {group!r}: slot lease {duration:.4f} s is not in (0, "
-                f"{self.timing.max_slot} s]; shorten the slot or raise max_slot_ms"
+                f"{self.timing.max_slot:g} s] (half of [cluster] sync_lease_ms), so the longest "
+                f"slot is {longest_slot(self.timing.max_slot):g} s; shorten the measure's slot "
+                "or raise [cluster] sync_lease_ms"
             )
         start = self.clock()
         end = start + timeout
