@@ -56,7 +56,10 @@ class Metric:
 
 
 class Truth(Protocol):
-    """The true value of named quantities at any time of a simulated run."""
+    """The true value of named quantities at any time of a simulated run. A truth may also
+    have ``sign_free``: groups of its columns that name one quantity up to its sign (a unit
+    quaternion's four: q and -q are one rotation); a display turns such a group of the truth
+    to the estimate's side before it differences them (the live view does)."""
 
     columns: tuple[str, ...]
 
@@ -68,10 +71,12 @@ class Truth(Protocol):
 
 @dataclass(frozen=True)
 class FunctionTruth:
-    """A :class:`Truth` from a function of time: ``fn(t) -> {column: value}``."""
+    """A :class:`Truth` from a function of time: ``fn(t) -> {column: value}``;
+    ``sign_free`` as :class:`Truth` says."""
 
     columns: tuple[str, ...]
     fn: Callable[[float], Mapping[str, float]]
+    sign_free: tuple[tuple[str, ...], ...] = ()
 
     def at(self, t: float) -> Mapping[str, float]:
         return self.fn(t)
@@ -189,7 +194,10 @@ class WebPanel:
       ``{"label", "x", "y"}`` with an optional ``"heading"`` (an arrow) and ``"truth":
       true`` (drawn as the reference). The page keeps a short trail per label.
     - ``"attitude"``: ``bodies``: ``{"label", "roll", "pitch", "yaw"}`` (an artificial
-      horizon and a compass each), an optional ``"truth": true``.
+      horizon and a compass each), an optional ``"truth": true``; yaw turns
+      counter-clockwise about the world's up axis from its x axis, and ``north`` (optional,
+      the same convention; default pi/2: north along +y) is where the compass puts N, so its
+      needle shows the heading north - yaw, clockwise from north.
     - ``"grid"``: a heat map: ``values`` (rows of numbers, None for unknown; row i spans
       y0 + i cell .. y0 + (i + 1) cell, column j likewise in x), ``origin`` ``[x0, y0]``
       (the lower-left corner of cell [0][0]), ``cell`` (its size), optional ``min``/``max``

@@ -269,7 +269,8 @@ class Console:
                 if truth is not None:
                     last = i == len(got) - 1
                     if bucket.truth is None or last:
-                        values = _truth_at(truth, point[1], _columns(cls, len(point[3])))
+                        cols = _columns(cls, len(point[3]))
+                        values = _truth_at(truth, point[1], cols, point[3])
                         if not last:
                             bucket.truth = values
                     else:
@@ -334,12 +335,22 @@ class Console:
         self.client.close()
 
 
-def _truth_at(truth: Truth, t: float, columns: list[str]) -> list[float | None]:
+def _truth_at(truth: Truth, t: float, columns: list[str], means: list[float]) -> list[float | None]:
+    """The truth at ``t`` in the order of ``columns`` (None where it has none), each of its
+    ``sign_free`` groups turned to the side of the estimate's ``means`` (a quaternion and
+    its negative are one attitude: their difference column by column is not an error)."""
     try:
         at = truth.at(t)
     except Exception:  # outside the simulated world's time, say
         return [None] * len(columns)
-    return [None if c not in at else float(f"{at[c]:.7g}") for c in columns]
+    out = [None if c not in at else float(f"{at[c]:.7g}") for c in columns]
+    for group in getattr(truth, "sign_free", ()):
+        idx = [columns.index(c) for c in group if c in columns]
+        whole = len(idx) == len(group) and all(out[i] is not None for i in idx)
+        if whole and sum(means[i] * out[i] for i in idx) < 0.0:  # type: ignore[operator]
+            for i in idx:
+                out[i] = -out[i]  # type: ignore[operator]
+    return out
 
 
 def _describe(event: Mapping[str, Any]) -> str:

@@ -14,7 +14,9 @@ ch. 7.1.3 are ``still``, ``rotation_slow``, ``rotation_fast`` and ``shaking``). 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -43,13 +45,22 @@ from hera.models.ahrs.scoring import (
 LABELS = {Ahrs: "ours", AhrsThesis: "e11"}
 
 
-def orientation_truth(world: Mapping[str, Any]) -> Truth | None:
+@dataclass(frozen=True)
+class OrientationTruth(FunctionTruth):
+    """An orientation's truth, and where magnetic north lies in the world (rad,
+    counter-clockwise about up from the world's x axis): what a compass shows as N."""
+
+    north: float = math.pi / 2
+
+
+def orientation_truth(world: Mapping[str, Any]) -> OrientationTruth | None:
     """The body's true orientation (qw, qx, qy, qz: body -> world) at any epoch time, or
     None when the world is not one the simulator knows."""
-    from hera.nodes.world import epoch_of, make_scenario, state_at
+    from hera.nodes.world import environment, epoch_of, make_scenario, state_at
 
     try:
         scenario, epoch = make_scenario(world), epoch_of(world)
+        north = environment(world).mag_north
     except ValueError:
         return None
 
@@ -57,7 +68,7 @@ def orientation_truth(world: Mapping[str, Any]) -> Truth | None:
         q = state_at(scenario, epoch, t).orientation
         return dict(zip(QUAT, q, strict=True))
 
-    return FunctionTruth(QUAT, at)
+    return OrientationTruth(QUAT, at, sign_free=(QUAT,), north=north)
 
 
 def truth_quats(truth: Truth, times: np.ndarray) -> np.ndarray:
@@ -199,7 +210,7 @@ class AhrsApp(Application):
     def web_panel(self, estimates: Sequence[Estimate], truth: Truth | None) -> WebPanel | None:
         """An artificial horizon and a compass per model and node (yaw, pitch, roll in
         radians, ``R = Rz(yaw) Ry(pitch) Rx(roll)``), and the truth at the newest estimate's
-        time."""
+        time; the compass's N is the world's magnetic north."""
         bodies = []
         for e in estimates:
             if all(c in e.values for c in QUAT):
@@ -211,7 +222,8 @@ class AhrsApp(Application):
             tq = [[truth.at(max(e.t for e in estimates))[c] for c in QUAT]]
             ypr = np.radians(yaw_pitch_roll_deg(tq)[0])
             bodies.append({"label": "truth", **_rpy(ypr), "truth": True})
-        return WebPanel("attitude", "attitude", {"bodies": bodies})
+        north = getattr(truth, "north", math.pi / 2)  # +y without a simulated world
+        return WebPanel("attitude", "attitude", {"bodies": bodies, "north": north})
 
 
 def _rpy(ypr: np.ndarray) -> dict[str, float]:

@@ -81,7 +81,7 @@ class Imu6dofApp(Application):
         pos, att = position_truth(world), orientation_truth(world)
         if pos is None or att is None:
             return None
-        return FunctionTruth((*POS, *QUAT), lambda t: {**pos.at(t), **att.at(t)})
+        return FunctionTruth((*POS, *QUAT), lambda t: {**pos.at(t), **att.at(t)}, sign_free=(QUAT,))
 
     def score(
         self, series: Series, truth: Truth | None, options: EvalOptions

@@ -29,7 +29,8 @@ PANELS = [
             "bodies": [
                 {"label": "ahrs a", "roll": 0.2, "pitch": -0.1, "yaw": 1.2},
                 {"label": "truth", "roll": 0.0, "pitch": 0.0, "yaw": 1.0, "truth": True},
-            ]
+            ],
+            "north": 0.5,  # rad from +x: the headings are north - yaw, clockwise from N
         },
     },
     {
@@ -123,9 +124,10 @@ def test_the_page_draws_every_kind_of_view_and_says_when_the_server_is_gone(brow
         page.goto(url)
         for kind in ("plane", "attitude", "grid"):
             page.wait_for_selector(f"#panels .panel[data-kind='{kind}']", timeout=5000)
-        assert (
-            page.locator("#panels .panel[data-kind='attitude']").get_attribute("data-points") == "2"
-        )
+        attitude = page.locator("#panels .panel[data-kind='attitude']")
+        assert attitude.get_attribute("data-points") == "2"
+        # 0.5 - 1.2 rad = -40.1 deg, 0.5 - 1.0 rad = -28.6 deg: the needles' headings
+        assert attitude.get_attribute("data-headings") == "319.9,331.4"
         page.wait_for_function("(window.hera.points['s/a'] || 0) >= 30", timeout=5000)
         assert "crash obs1" in page.inner_text("#events")
         path = artifacts_dir() / "panels.png"

@@ -4,6 +4,7 @@ eval`` and ``hera up`` ask them), and their truth for any simulated world."""
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -87,6 +88,12 @@ def test_attitude_scores_plots_and_panel(tmp_path):
     assert ours["roll"] == pytest.approx(true_body["roll"], abs=1e-9)
     assert ours["pitch"] == pytest.approx(true_body["pitch"], abs=1e-9)
     assert app.web_panel([Estimate("other", "n", 1.0, {"x": 1.0})], truth) is None
+    # the compass's N is the world's magnetic north (the page drew yaw from +y's place, so
+    # a body facing north showed east); +y without a simulated world
+    assert web.data["north"] == pytest.approx(math.pi / 2)
+    turned = app.truth({**world, "mag_north_deg": 30.0})
+    assert app.web_panel([e], turned).data["north"] == pytest.approx(math.radians(30.0))
+    assert app.web_panel([e], None).data["north"] == pytest.approx(math.pi / 2)
 
 
 def test_imu6dof_truth_has_position_and_orientation(tmp_path):

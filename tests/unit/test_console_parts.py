@@ -368,6 +368,36 @@ def test_the_console_joins_model_columns_with_the_truth_and_builds_the_panels():
         console.close()
 
 
+def test_a_quaternion_truth_is_shown_on_the_estimates_side():
+    """q and -q are one attitude: the view differenced them column by column and showed an
+    attitude that was right as 'qw -0.75 truth 0.75 err -1.50' (the audit of 2026-12-07)."""
+    from hera.console.state import Console
+    from hera.examples import resolve_spec
+    from hera.ports import free_ports
+    from hera.spec import load_spec
+    from hera.wire import encode
+
+    spec = load_spec(resolve_spec("ahrs"))
+    spec = spec.with_ports(free_ports("127.0.0.1", len(spec.nodes))).with_world(epoch=1000.0)
+    console = Console(spec.with_security(auth=False))  # no cluster here: nothing to join
+    try:
+        truth = console._truth_of(console.classes["attitude_mekf"])
+        for k in range(20):  # 2 s at 10 Hz: the true attitude, then its negative
+            t = 1010.05 + k / 10
+            q = [truth.at(t)[c] for c in ("qw", "qx", "qy", "qz")]
+            sign = 1.0 if k < 10 else -1.0
+            values = [sign * v for v in q] + [0.0] * 11
+            key = "hera/ahrs/data/attitude_mekf/computer"
+            console._on_sample(FakeSample(key, encode(k + 1, t, values)))
+        points = console.poll(["attitude_mekf/computer"], 0.0)["data"]["attitude_mekf/computer"]
+        assert len(points["points"]) == 20
+        for _, _, _, means, _, _, true in points["points"]:
+            assert true[:4] == pytest.approx(means[:4], abs=1e-5)  # no error either way
+        assert points["points"][-1][6][0] * points["points"][0][6][0] < 0  # turned over
+    finally:
+        console.close()
+
+
 def test_the_lazily_loaded_runtime_packages_are_never_reloaded(tmp_path, monkeypatch):
     """A node loads the estimation package and numpy only for a filter: they belong to the
     runtime all the same, loaded or not; a package of the user's does not."""

@@ -379,6 +379,14 @@ function drawAttitude(container, panel) {
   box.querySelector("h3").textContent = panel.title;
   const r = Math.min(44, width / 6);
   const deg = (v) => (v * 180 / Math.PI).toFixed(1);
+  // yaw turns counter-clockwise about the world's up axis from its x axis; the compass
+  // shows the heading, clockwise from north (north: the world's angle of it, +y by default)
+  const north = typeof panel.data.north === "number" ? panel.data.north : Math.PI / 2;
+  const heading = (b) => {
+    const h = (north - b.yaw) % (2 * Math.PI);
+    return h < 0 ? h + 2 * Math.PI : h;
+  };
+  box.dataset.headings = bodies.map((b) => deg(heading(b))).join(",");
   bodies.forEach((b, k) => {
     const cy = row * k + r + 6, hx = r + 6, cx = 3 * r + 16;
     const color = b.truth ? "#111" : COLORS[k % COLORS.length];
@@ -396,7 +404,8 @@ function drawAttitude(container, panel) {
     ctx.fillStyle = "#69707a"; ctx.font = "10px system-ui, sans-serif";
     ctx.fillText("N", cx - 3, cy - r + 11);
     ctx.beginPath(); ctx.moveTo(cx, cy);
-    ctx.lineTo(cx + (r - 6) * Math.sin(b.yaw), cy - (r - 6) * Math.cos(b.yaw));
+    const h = heading(b);
+    ctx.lineTo(cx + (r - 6) * Math.sin(h), cy - (r - 6) * Math.cos(h));
     ctx.strokeStyle = color; ctx.lineWidth = 2; ctx.stroke(); ctx.lineWidth = 1;
     ctx.fillStyle = color; ctx.font = "12px system-ui, sans-serif";
     const tx = cx + r + 12;
@@ -404,7 +413,7 @@ function drawAttitude(container, panel) {
     ctx.fillStyle = "#1d2126"; ctx.font = "11px system-ui, sans-serif";
     ctx.fillText(`roll ${deg(b.roll)} deg`, tx, cy - 2);
     ctx.fillText(`pitch ${deg(b.pitch)} deg`, tx, cy + 13);
-    ctx.fillText(`yaw ${deg(b.yaw)} deg`, tx, cy + 28);
+    ctx.fillText(`yaw ${deg(b.yaw)} deg, heading ${deg(h)} deg`, tx, cy + 28);
   });
 }
 
