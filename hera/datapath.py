@@ -281,6 +281,10 @@ class DataPath:
                     raise ValueError(f"expected a map, got {type(seqs).__name__}")
                 mine = {}
                 for name, entry in seqs.items():
+                    if isinstance(entry, list) and entry[:1] == [self.incarnation]:
+                        # its own queryable's answer to this very query, holding what it
+                        # adopted from an earlier answer: no peer had it (nothing published)
+                        continue
                     if (
                         isinstance(entry, list)
                         and len(entry) == 2
