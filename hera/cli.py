@@ -153,7 +153,7 @@ def _parser() -> argparse.ArgumentParser:
     node.add_argument("--run-dir", help="run directory for logs and recordings")
     node.add_argument("--state-dir", help="where the node persists its args (calibrations)")
     node.add_argument("--parent-pid", type=cliargs.count, help="stop when this process is gone")
-    node.add_argument("--log-level", default="INFO")
+    node.add_argument("--log-level", type=cliargs.log_level, default="INFO")
     node.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
     node.add_argument(
         "--check-only",
@@ -173,7 +173,7 @@ def _parser() -> argparse.ArgumentParser:
     rt.add_argument("spec", help="cluster spec (TOML, an example's name, or a cluster.json)")
     rt.add_argument("--name", required=True, help="name of the router to run")
     rt.add_argument("--parent-pid", type=cliargs.count, help="stop when this process is gone")
-    rt.add_argument("--log-level", default="INFO")
+    rt.add_argument("--log-level", type=cliargs.log_level, default="INFO")
     rt.add_argument("--cert", metavar="DIR", help=cert_help + "; overrides [security] certs")
 
     ce = _command(
@@ -248,7 +248,7 @@ def _parser() -> argparse.ArgumentParser:
     rp.add_argument(
         "--spec", help="spec giving the models' settings (default: the recordings' cluster.json)"
     )
-    rp.add_argument("--node", default="replay", help="node name of the outputs")
+    rp.add_argument("--node", type=cliargs.name, default="replay", help="node name of the outputs")
     rp.add_argument(
         "--set",
         dest="overrides",
@@ -693,7 +693,7 @@ def _down(args: argparse.Namespace) -> int:
     if args.connect:
         return _down_over_the_bus(args)
     run_dir = find_run_dir(args.run_dir, args.cluster)
-    pid = json.loads((run_dir / "launcher.json").read_text())["launcher_pid"]
+    pid = _launcher_pid(run_dir / "launcher.json")
     if not pid_alive(pid):
         print(f"cluster in {run_dir} is not running")
         return 1
@@ -706,6 +706,20 @@ def _down(args: argparse.Namespace) -> int:
         return 1
     print(f"cluster in {run_dir} stopped")
     return 0
+
+
+def _launcher_pid(path) -> int:
+    """The launcher's pid its ``launcher.json`` records; ValueError naming the file when it
+    is not there or not one."""
+    if not path.exists():
+        raise ValueError(f"{path}: no such file: is {path.parent} a run directory of 'hera up'?")
+    try:
+        pid = json.loads(path.read_text())["launcher_pid"]
+    except (ValueError, KeyError, TypeError):
+        pid = None
+    if isinstance(pid, bool) or not isinstance(pid, int) or pid <= 0:
+        raise ValueError(f"{path}: not a launcher's record (launcher_pid, written by 'hera up')")
+    return pid
 
 
 def _down_over_the_bus(args: argparse.Namespace) -> int:
@@ -881,6 +895,9 @@ def _eval(args: argparse.Namespace) -> int:
     from hera.plugins import AppIndex
 
     options = EvalOptions(after=args.after, settle=args.settle)
+    plots = Path(args.plots) if args.plots and not args.no_plots else None
+    if plots is not None and plots.exists() and not plots.is_dir():
+        raise ValueError(f"--plots {args.plots}: not a folder")
     index = AppIndex()
     from hera.progress import Progress
 
@@ -888,6 +905,14 @@ def _eval(args: argparse.Namespace) -> int:
         results = evaluate(args.run_dir, options, index, args.reference, progress)
     if not results:
         raise ValueError(f"{args.run_dir}: no model outputs to score (no fusion model logged)")
+    nodes = args.node.split(",") if args.node else None
+    have = sorted({r.series.node for r in results})
+    unknown = [n for n in nodes or () if n not in have]
+    if unknown and not args.no_plots:
+        raise ValueError(
+            f"--node {','.join(unknown)}: no model outputs of that node in {args.run_dir} "
+            f"(nodes: {', '.join(have)})"
+        )
     for line in notes(results):
         print(line, file=sys.stderr)
     if args.json:
@@ -897,7 +922,6 @@ def _eval(args: argparse.Namespace) -> int:
     if not args.no_plots:
         try:
             out = args.plots or Path(args.run_dir) / "eval"
-            nodes = args.node.split(",") if args.node else None
             files = plot(args.run_dir, out, nodes, options, index, args.reference)
             if not args.json:
                 print("plots: " + (", ".join(str(f) for f in files) or "none"))
@@ -917,8 +941,22 @@ def _import(args: argparse.Namespace) -> int:
         raise ValueError(f"unknown log format {args.format!r}; formats: {known or 'none'}")
     src, out = Path(args.src), Path(args.out)
     if not src.is_dir():
-        raise ValueError(f"{src}: no such folder of logs")
+        raise ValueError(f"{src}: {'not a folder' if src.exists() else 'no such folder'} of logs")
     if out.exists() and any(out.iterdir()):
         raise ValueError(f"{out}: exists and is not empty; give a new folder")
-    print(importers[args.format][1](src, out))
+    made = not out.exists()
+    try:
+        print(importers[args.format][1](src, out))
+    except BaseException:  # refused or stopped: no half-written run directory stays
+        import shutil
+
+        if made:
+            shutil.rmtree(out, ignore_errors=True)
+        elif out.is_dir():
+            for entry in out.iterdir():
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.rmtree(entry, ignore_errors=True)
+                else:
+                    entry.unlink(missing_ok=True)
+        raise
     return 0

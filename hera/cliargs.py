@@ -93,6 +93,29 @@ def one_of(*allowed: str) -> Callable[[str], str]:
     return kind
 
 
+def name(text: str) -> str:
+    """A name as a spec gives one (a node's): a key chunk and a file name part."""
+    from hera.keys import MAX_CHUNK, check_chunk
+
+    try:
+        return check_chunk(text, "name")
+    except ValueError:
+        raise _Bad(
+            f"must use only letters, digits, '_', '.' and '-' (no '/', '*', '$'), at most "
+            f"{MAX_CHUNK} of them, got {text!r}"
+        ) from None
+
+
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
+
+
+def log_level(text: str) -> str:
+    """A logging level, any case (``info``), as the logging module names it (``INFO``)."""
+    if text.upper() not in LOG_LEVELS:
+        raise _Bad(f"must be one of {', '.join(LOG_LEVELS)}, got {text!r}")
+    return text.upper()
+
+
 def comma_separated(kind: Callable[[str], T]) -> Callable[[str], list[T]]:
     """Comma-separated values of ``kind``, each checked (the first bad one is named)."""
 

@@ -30,7 +30,7 @@ from hera.application import (
 )
 from hera.fusion import spec_models
 from hera.plugins import AppIndex
-from hera.recordings import SOURCE_FILE, measures_dir, read_csv
+from hera.recordings import SOURCE_FILE, measures_dir, read_columns, read_csv
 from hera.rundirs import folder_problem
 from hera.spec import ClusterSpec, load_spec
 
@@ -68,8 +68,8 @@ def load_outputs(run_dir: str | Path, spec: ClusterSpec | None = None) -> list[S
     classes = spec_models(spec)
     out = []
     for side in sorted(measures_dir(run_dir).glob("*.columns.json")):
-        meta = json.loads(side.read_text())
-        if meta.get("name") not in classes:
+        meta = read_columns(side)
+        if meta["name"] not in classes:
             continue
         csv = side.with_name(side.name.replace(".columns.json", ".csv"))
         samples = read_csv(csv, meta["name"], meta["node"])
@@ -110,7 +110,7 @@ def read_reference(path: str | Path) -> Series:
             f"{path}: a reference is a recording <name>_<node>.csv beside its "
             f"<name>_<node>.columns.json"
         )
-    meta = json.loads(side.read_text())
+    meta = read_columns(side, ())
     samples = read_csv(path, meta.get("name", path.stem), meta.get("node", ""))
     return Series(
         meta.get("name", path.stem),
@@ -147,6 +147,8 @@ def evaluate(
     each output."""
     options = options or EvalOptions()
     spec = run_spec(run_dir)
+    if reference is not None:
+        read_reference(reference)  # a reference given is one, if or not the world has truth
     index = index or AppIndex()
     refs: dict[str, Reference | None] = {}
     out = []

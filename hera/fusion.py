@@ -118,6 +118,26 @@ def adopt_model(new: Any, old: Any) -> bool:
     return False
 
 
+def number_problems(model_class: type, settings: Mapping[str, Any]) -> list[str]:
+    """``"KEY must be a number, got VALUE"`` for each of ``settings`` that the model's
+    ``__init__`` declares a number (annotated ``float`` or ``int``, ``| None`` allowing
+    null) and is given something else: caught before a node starts, where the model would
+    only say ``could not convert string to float``."""
+    params = inspect.signature(model_class).parameters
+    out = []
+    for key, value in settings.items():
+        p = params.get(key)
+        note = getattr(p.annotation, "__name__", p.annotation) if p is not None else ""
+        kind, _, rest = str(note).replace(" ", "").partition("|")
+        if kind not in ("float", "int") or rest not in ("", "None") or (value is None and rest):
+            continue
+        kinds = (int,) if kind == "int" else (int, float)
+        if isinstance(value, bool) or not isinstance(value, kinds):
+            what = "an integer" if kind == "int" else "a number"
+            out.append(f"{key} must be {what}{' or null' if rest else ''}, got {value!r}")
+    return out
+
+
 def model_settings(model_class: type) -> tuple[str, ...] | None:
     """The keyword settings ``model_class`` takes (its ``__init__``'s named parameters), or
     None when it takes any (``**kwargs``)."""
@@ -309,6 +329,8 @@ class FusionMeasure(Measure):
                         f"{where}: model: unknown setting {key!r}{did_you_mean(str(key), known)}"
                         f"; known settings: {', '.join(known)}"
                     )
+        if not problems and isinstance(model, Mapping):
+            problems += [f"{where}: model: {p}" for p in number_problems(cls.model_class, model)]
         check = getattr(cls.model_class, "check", None)
         if not problems and isinstance(model, Mapping) and callable(check):
             try:

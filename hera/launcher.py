@@ -260,6 +260,12 @@ class Launcher:
             spec = spec.with_ports(free_ports(spec.host, len(unset)))
         if "epoch" not in spec.world:
             spec = spec.with_world(epoch=time.time())
+        # credentials given (certs) are checked before a run directory is made: a refused
+        # start leaves no empty run behind (nor hera-run/<cluster> pointing at one)
+        makes_secret = spec.auth and not spec.tls and not spec.certs
+        if not makes_secret:
+            for name in self.local | {OPERATOR}:
+                for_spec(spec, name)
         self.spec: ClusterSpec = spec
         self.link: Path | None = None
         if run_dir is None:
@@ -269,11 +275,11 @@ class Launcher:
         else:
             self.run_dir = prepare_run_dir(Path(run_dir), overwrite)
         self.state_dir = state_dir(spec.name, self.run_dir, run_dir is not None)
-        if spec.auth and not spec.tls and not spec.certs:
+        if makes_secret:
             spec = spec.with_security(secret=str(make_secret(self.run_dir / SECRET_FILE)))
+            for name in self.local | {OPERATOR}:
+                for_spec(spec, name)  # CredentialsError now rather than in every node
         self.spec = spec
-        for name in self.local | {OPERATOR}:
-            for_spec(spec, name)  # CredentialsError now rather than in every node
         self.duration = duration
         self.out = out or sys.stdout
         self.interval = interval

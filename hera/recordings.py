@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import io
 import json
 import math
 from collections.abc import Iterable
@@ -115,6 +116,32 @@ def split_stem(stem: str, names: Iterable[str] = ()) -> tuple[str, str]:
     return name, node
 
 
+def read_columns(side: str | Path, keys: Iterable[str] = ("name", "node")) -> dict:
+    """A columns sidecar ``<name>_<node>.columns.json``: a JSON object with ``columns``
+    (seq, timestamp, then one per value) and the text ``keys``; RecordingError naming the
+    file when it is not one."""
+    try:
+        meta = json.loads(Path(side).read_text())
+    except UnicodeDecodeError:
+        meta = None
+    except ValueError as e:
+        raise RecordingError(f"{side}: not a columns sidecar ({e})") from None
+    keys = tuple(keys)
+    if not (
+        isinstance(meta, dict)
+        and all(isinstance(meta.get(k), str) for k in keys)
+        and isinstance(meta.get("columns"), list)
+        and len(meta["columns"]) >= 2
+        and all(isinstance(c, str) for c in meta["columns"])
+    ):
+        raise RecordingError(
+            f"{side}: not a columns sidecar (a JSON object with "
+            + "".join(f"{k}, " for k in keys)
+            + "columns: seq, timestamp, then one per value)"
+        )
+    return meta
+
+
 def _width(path: Path) -> int | None:
     """The number of values per row the CSV's columns sidecar names, if it has one."""
     side = path.with_name(path.name.replace(".csv", ".columns.json"))
@@ -141,34 +168,41 @@ def recorded_time(t: float) -> float:
 def read_csv(path: Path, name: str, node: str) -> list[Sample]:
     """Every row of one CSV as samples (t in seconds); RecordingError naming the file and
     the row on a row that is not ``seq,timestamp_ms,values...``, has another number of
-    values than the others (or than its columns sidecar says), or is not text."""
+    values than the others (or than its columns sidecar says), or is not text. A last row
+    without its line end that is not whole is left out: the row a killed logger was
+    writing (see :mod:`hera.csvlog`)."""
     out = []
     width = _width(path)
     try:
         with open(path, newline="") as f:
-            for i, row in enumerate(csv.reader(f), start=1):
-                if not row or not "".join(row).strip():
-                    continue
-                try:
-                    seq, ts = int(row[0]), float(row[1])
-                    values = tuple(float(v) for v in row[2:])
-                except (ValueError, IndexError):
-                    raise RecordingError(
-                        f"{path}:{i}: expected seq,timestamp_ms,values...: {','.join(row)[:80]!r}"
-                    ) from None
-                if not (math.isfinite(ts) and all(math.isfinite(v) for v in values)):
-                    raise RecordingError(f"{path}:{i}: non-finite number")
-                if width is None:
-                    width = len(values)
-                elif len(values) != width:
-                    raise RecordingError(
-                        f"{path}:{i}: {len(values)} values where the rows have {width}"
-                    )
-                out.append(Sample(name, node, seq, ts / 1000.0, 0.0, 0.0, values))
+            text = f.read()
     except UnicodeDecodeError:
         raise RecordingError(
             f"{path}: not a text CSV (a recording is seq,timestamp_ms,...)"
         ) from None
+    rows = list(csv.reader(io.StringIO(text)))
+    cut = len(rows) if text and not text.endswith(("\n", "\r")) else 0
+    for i, row in enumerate(rows, start=1):
+        if not row or not "".join(row).strip():
+            continue
+        try:
+            seq, ts = int(row[0]), float(row[1])
+            values = tuple(float(v) for v in row[2:])
+        except (ValueError, IndexError):
+            if i == cut:
+                break
+            raise RecordingError(
+                f"{path}:{i}: expected seq,timestamp_ms,values...: {','.join(row)[:80]!r}"
+            ) from None
+        if not (math.isfinite(ts) and all(math.isfinite(v) for v in values)):
+            raise RecordingError(f"{path}:{i}: non-finite number")
+        if width is None:
+            width = len(values)
+        elif len(values) != width:
+            if i == cut:
+                break
+            raise RecordingError(f"{path}:{i}: {len(values)} values where the rows have {width}")
+        out.append(Sample(name, node, seq, ts / 1000.0, 0.0, 0.0, values))
     return out
 
 

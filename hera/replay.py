@@ -293,6 +293,21 @@ def replay(
     the models by the names this spec gives them (not when ``out`` is the recordings'
     folder: its own spec stays).
     """
+    same = Path(out).resolve() == Path(recordings).resolve()
+    if (
+        not same
+        and (Path(out) / "cluster.json").exists()
+        and not (Path(out) / SOURCE_FILE).exists()
+    ):
+        raise ValueError(
+            f"--out {out} holds a run of its own (its cluster.json, and no {SOURCE_FILE} of a "
+            "replay): give a new folder, a previous replay's, or the recordings' own"
+        )
+    if world is not None and same:
+        raise ValueError(
+            f"--out {out} is the recordings' folder, whose cluster.json keeps the world the "
+            "live run had: a replay with world overrides (--set world.KEY=V) needs another --out"
+        )
     instances = {}
     for name, (use, params) in models.items():
         cls = find_measure(use)

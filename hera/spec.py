@@ -489,9 +489,19 @@ def load_spec(path: str | Path) -> ClusterSpec:
         raise SpecError(f"{path}: not a text file (a spec is TOML)") from None
     if path.suffix == ".json":
         try:
-            return from_resolved(json.loads(text_)["resolved_spec"])
-        except (KeyError, TypeError, ValueError) as e:
+            data = json.loads(text_)
+        except ValueError as e:
             raise SpecError(f"{path}: not a resolved spec written by hera up ({e})") from None
+        if not isinstance(data, dict) or not isinstance(data.get("resolved_spec"), dict):
+            raise SpecError(
+                f"{path}: not a resolved spec written by hera up (a JSON object whose "
+                "resolved_spec is the spec)"
+            )
+        try:
+            return from_resolved(data["resolved_spec"])
+        except (KeyError, TypeError, ValueError) as e:
+            why = f"no key {e}" if isinstance(e, KeyError) else str(e)
+            raise SpecError(f"{path}: not a resolved spec written by hera up ({why})") from None
     try:
         data = tomllib.loads(text_)
     except tomllib.TOMLDecodeError as e:

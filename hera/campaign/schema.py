@@ -22,6 +22,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from hera.keys import MAX_CHUNK, check_chunk
 from hera.schema import (
     BOOL,
     REQUIRED,
@@ -444,6 +445,14 @@ def parse_campaign(data: Mapping[str, Any], source: str = "<campaign>") -> Campa
         if key not in TOP:
             problems.append(f"{source}: unknown table {key!r}; known tables: {', '.join(TOP)}")
     camp = CAMPAIGN_TABLE.parse(data.get("campaign"), f"{source}: [campaign]", problems)
+    if isinstance(camp.get("name"), str):
+        try:
+            check_chunk(camp["name"], "name")
+        except ValueError:
+            problems.append(
+                f"{source}: [campaign]: name must use only letters, digits, '_', '.' and '-' "
+                f"(it names the run directory), at most {MAX_CHUNK} of them, got {camp['name']!r}"
+            )
     faults = []
     raw_faults = data.get("faults", [])
     if not isinstance(raw_faults, list):
@@ -464,7 +473,7 @@ def parse_campaign(data: Mapping[str, Any], source: str = "<campaign>") -> Campa
         names.append(name)
         faults.append(Fault(f.pop("kind"), name, f))
     nemesis = _nemesis(data.get("nemesis"), f"{source}: [nemesis]", problems)
-    if not faults and nemesis is None and not camp.get("hold_s"):
+    if not raw_faults and "nemesis" not in data and not camp.get("hold_s"):
         problems.append(f"{source}: a campaign needs [[faults]], a [nemesis] or hold_s > 0")
     raw_checks = data.get("checks", {})
     if not isinstance(raw_checks, Mapping):

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import queue
 import re
 import threading
@@ -33,7 +34,7 @@ from typing import IO, Any
 from hera.application import Truth
 from hera.evaluate import run_spec
 from hera.plugins import AppIndex, find_measure
-from hera.recordings import measures_dir, read_csv, split_stem
+from hera.recordings import measures_dir, read_columns, read_csv, split_stem
 from hera.spec import ClusterSpec
 
 PROFILE = ""
@@ -193,12 +194,15 @@ class Channels:
         return len(self._channels) + sum(1 for c in self._truth_channels.values() if c)
 
 
-def _open(out: str | Path) -> tuple[Any, IO[bytes]]:
+def _open(out: str | Path, part: Path | None = None) -> tuple[Any, IO[bytes]]:
+    """A writer started on MCAP file ``out`` (or on ``part``, renamed to ``out`` when done)."""
     Writer = _writer_class()
     path = Path(out)
     if path.parent and not path.parent.exists():
         raise ValueError(f"{out}: folder {path.parent} does not exist")
-    f = open(path, "wb")  # noqa: SIM115 - closed by the caller
+    if path.is_dir():
+        raise ValueError(f"{out}: is a folder; give the name of the .mcap file to write")
+    f = open(part or path, "wb")  # noqa: SIM115 - closed by the caller
     writer = Writer(f)
     writer.start(profile=PROFILE, library=LIBRARY)
     return writer, f
@@ -225,14 +229,17 @@ def export_run(
     for path in files:
         side = path.with_name(path.stem + ".columns.json")
         if side.exists():
-            meta = json.loads(side.read_text())
+            meta = read_columns(side)
             name, node = meta["name"], meta["node"]
             columns[f"{name}/{node}"] = list(meta["columns"][2:])
         else:
             name, node = split_stem(path.stem, names)
         rows.extend(read_csv(path, name, node))
     rows.sort(key=lambda s: (s.t, s.name, s.node, s.seq))
-    writer, f = _open(out)
+    # written beside, then renamed: an export that fails or is stopped leaves no file cut
+    # short, and a file already at ``out`` as it was
+    part = Path(out).with_name(f".{Path(out).name}.{os.getpid()}.part")
+    writer, f = _open(out, part)
     try:
         channels = Channels(writer, spec)
         for i, s in enumerate(rows):
@@ -240,8 +247,11 @@ def export_run(
             if progress is not None and (i % 2000 == 0 or i == len(rows) - 1):
                 progress(i + 1, len(rows))
         writer.finish()
+        f.close()
+        os.replace(part, out)
     finally:
         f.close()
+        part.unlink(missing_ok=True)
     return {
         "messages": channels.messages,
         "channels": channels.channels,

@@ -68,11 +68,31 @@ def _names(hosts: Iterable[str]) -> list[x509.GeneralName]:
 
 
 def _ca(folder: Path, cluster: str) -> tuple[ec.EllipticCurvePrivateKey, x509.Certificate]:
-    """The CA of ``folder`` (made when absent)."""
-    if (folder / CA_KEY).exists() and (folder / CA_CERT).exists():
-        key = serialization.load_pem_private_key((folder / CA_KEY).read_bytes(), None)
-        cert = x509.load_pem_x509_certificate((folder / CA_CERT).read_bytes())
-        assert isinstance(key, ec.EllipticCurvePrivateKey)
+    """The CA of ``folder`` (made when absent); ValueError naming the file when the folder
+    holds half a CA or one that cannot be read (it is never replaced: every certificate
+    signed by it would stop working)."""
+    key_file, cert_file = folder / CA_KEY, folder / CA_CERT
+    if key_file.exists() != cert_file.exists():
+        have, lost = (key_file, cert_file) if key_file.exists() else (cert_file, key_file)
+        raise ValueError(
+            f"{folder}: holds {have.name} but not {lost.name}: a CA needs both (put "
+            f"{lost.name} back, or give a new folder for a new CA)"
+        )
+    if key_file.exists():
+        try:
+            key = serialization.load_pem_private_key(key_file.read_bytes(), None)
+        except (ValueError, TypeError):
+            key = None
+        if not isinstance(key, ec.EllipticCurvePrivateKey):
+            raise ValueError(f"{key_file}: not the CA key made by 'hera certs' (PEM, EC)")
+        try:
+            cert = x509.load_pem_x509_certificate(cert_file.read_bytes())
+        except ValueError:
+            raise ValueError(
+                f"{cert_file}: not the CA certificate made by 'hera certs' (PEM)"
+            ) from None
+        if cert.public_key() != key.public_key():
+            raise ValueError(f"{folder}: {CA_KEY} is not the key of {CA_CERT}")
         return key, cert
     key = ec.generate_private_key(ec.SECP256R1())
     name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, f"hera {cluster} CA")])

@@ -66,7 +66,11 @@ def read_rows(path: Path, width: int) -> list[tuple[int, float, tuple[float, ...
     ValueError naming the file, the line and what is wrong."""
     out = []
     with open(path, newline="") as f:
-        for i, row in enumerate(csv.reader(f), start=1):
+        try:
+            rows = list(csv.reader(f))
+        except UnicodeDecodeError:
+            raise ValueError(f"{path}: not a text CSV (a log is seq,timestamp_ms,values)") from None
+        for i, row in enumerate(rows, start=1):
             if not row or not "".join(row).strip():
                 continue
             try:
