@@ -24,7 +24,9 @@ def measures_status(node: Node) -> dict[str, dict[str, Any]]:
     for cid, c in sup.children.items() if sup else ():
         w = c.worker
         st = w.stats if w is not None else None
+        decl = node.decls.get(cid)
         out[cid] = {
+            "use": decl.use if decl is not None else None,
             "state": c.state,
             "restarts": c.restarts,
             "crashes": c.crashes,

@@ -88,6 +88,9 @@ class Console:
         self._stop = threading.Event()
         self.client = ClusterClient(spec)
         self.peers = Peers(self.client.keys)
+        # the nodes up when the view starts come as liveliness history: not "joined" events
+        # (they were listed as joining at the view's start); set after the first status
+        self._joined_before = True
         self._subs = [
             self.client.subscribe(self.client.keys.data("*", "*"), self._on_sample),
             self.client.subscribe_alive(self._on_alive),
@@ -114,6 +117,8 @@ class Console:
         before = set(self.peers.up)
         self.peers.on_alive(sample)
         after = set(self.peers.up)
+        if self._joined_before:
+            return
         for node in sorted(after - before):
             self._event(node, "up", "joined the bus")
         for node in sorted(before - after):
@@ -134,8 +139,10 @@ class Console:
                 log.warning("status query failed: %s", e)
                 status = {}
             launcher = self._read_launcher()
+            self.learn_classes(status)
             with self._lock:
                 self.status, self.launcher = status, launcher
+            self._joined_before = False  # what comes now happens while the view watches
             for node, st in sorted(status.items()):
                 for ev in st.get("control_events", ()):
                     key = (node, float(ev.get("t", 0)), str(ev.get("verb")))
@@ -143,6 +150,17 @@ class Console:
                         continue
                     self._seen_events.add(key)
                     self._event(node, ev.get("verb", "?"), _describe(ev), float(ev.get("t", 0)))
+
+    def learn_classes(self, status: Mapping[str, Mapping[str, Any]]) -> None:
+        """Learn the class of each measure the nodes' ``status`` reports that the spec does
+        not name (started at run time by ``hera start NODE --use X``), so its outputs get
+        their columns, label, truth and panel as the spec's do."""
+        for st in status.values():
+            for name, m in (st.get("measures") or {}).items():
+                use = m.get("use") if isinstance(m, Mapping) else None
+                if name not in self.classes and isinstance(use, str):
+                    with contextlib.suppress(LookupError, TypeError):
+                        self.classes[name] = find_measure(use)
 
     def _read_launcher(self) -> dict[str, dict[str, Any]]:
         if self._launcher_state is not None:
@@ -227,14 +245,17 @@ class Console:
         return out
 
     def _rates(self) -> dict[str, float]:
-        """Samples per second of each stream over its last 2 s of complete buckets."""
+        """Samples per second of each stream over the last 2 s of complete buckets, up to
+        now (a stream that stopped falls to 0 within 2 s; it kept its last rate)."""
         out = {}
         span = 2.0
+        now = time.time()
         for stream in self.buffers.streams():
             newest = self.buffers.newest(stream)
             if newest is None:
                 continue
-            got = self.buffers.since(stream, newest - span - self.buffers.bucket_s)
+            end = max(newest, now)  # a sender's clock a little ahead: its newest bucket
+            got = self.buffers.since(stream, end - span - self.buffers.bucket_s)
             complete = got[:-1]
             out[stream] = round(sum(p[2] for _, p in complete) / span, 1) if complete else 0.0
         return out

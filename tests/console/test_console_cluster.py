@@ -516,6 +516,10 @@ def test_a_runtime_measure_survives_its_node_killed_and_the_page_shows_it(train,
     )
     assert started.returncode == 0, started.stdout + started.stderr
     assert latest(train, "extra/sonar_2")[0] == 7.0
+    # the status says what each measure is: the view learns the class of one started now
+    measures = status_of(train, "sonar_2")["measures"]
+    assert measures["extra"]["use"] == "fixture_measures:Tunable"
+    assert measures["sonar"]["use"] == "sonar"
     clash = train.hera("start", "sonar_2", "--use", "fixture_measures:Tunable", "--name", "extra")
     assert clash.returncode == 2 and "already runs" in clash.stderr, clash.stderr
     bad = train.hera(

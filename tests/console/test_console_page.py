@@ -22,6 +22,14 @@ PANELS = [
             ],
         },
     },
+    {  # a scene a few centimetres wide (the 3-D position's, no shapes): not zoomed to them
+        "title": "a small plane",
+        "kind": "plane",
+        "data": {
+            "shapes": [],
+            "points": [{"label": "p", "x": 0.30, "y": 0.10}, {"label": "q", "x": 0.31, "y": 0.11}],
+        },
+    },
     {
         "title": "attitudes",
         "kind": "attitude",
@@ -124,6 +132,10 @@ def test_the_page_draws_every_kind_of_view_and_says_when_the_server_is_gone(brow
         page.goto(url)
         for kind in ("plane", "attitude", "grid"):
             page.wait_for_selector(f"#panels .panel[data-kind='{kind}']", timeout=5000)
+        planes = page.locator("#panels .panel[data-kind='plane']")
+        assert planes.nth(0).get_attribute("data-bounds") == "-1.200,1.200,-1.200,1.200"
+        # 0.5 m at least, about the points: 0.305 +/- 0.25, 0.105 +/- 0.25
+        assert planes.nth(1).get_attribute("data-bounds") == "0.055,0.555,-0.145,0.355"
         attitude = page.locator("#panels .panel[data-kind='attitude']")
         assert attitude.get_attribute("data-points") == "2"
         # 0.5 - 1.2 rad = -40.1 deg, 0.5 - 1.0 rad = -28.6 deg: the needles' headings

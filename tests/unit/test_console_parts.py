@@ -7,6 +7,8 @@ import io
 import json
 import re
 import sys
+import time
+from types import SimpleNamespace
 
 import jsonschema
 import pytest
@@ -394,6 +396,63 @@ def test_a_quaternion_truth_is_shown_on_the_estimates_side():
         for _, _, _, means, _, _, true in points["points"]:
             assert true[:4] == pytest.approx(means[:4], abs=1e-5)  # no error either way
         assert points["points"][-1][6][0] * points["points"][0][6][0] < 0  # turned over
+    finally:
+        console.close()
+
+
+def test_a_model_started_at_run_time_is_shown_as_the_specs_are():
+    """``hera start NODE --use omega_acc --name e4_rt``: the view knew only the spec's
+    measures, so e4_rt was no model, had no label, truth or panel (the audit)."""
+    from hera.console.state import Console
+    from hera.examples import resolve_spec
+    from hera.plugins import find_measure
+    from hera.ports import free_ports
+    from hera.spec import load_spec
+
+    spec = load_spec(resolve_spec("train"))
+    spec = spec.with_ports(free_ports("127.0.0.1", len(spec.nodes))).with_world(epoch=1000.0)
+    console = Console(spec.with_security(auth=False))  # no cluster here: nothing to join
+    try:
+        assert "e4_rt" not in console.classes
+        nav = console.classes["nav"]
+        console.learn_classes(
+            {
+                "computer": {
+                    "measures": {
+                        "e4_rt": {"use": "omega_acc", "state": "running"},
+                        "lost": {"use": "no_such_measure"},
+                        "old": {"state": "running"},  # a node of before: no "use"
+                    }
+                },
+                "nav_1": {"measures": {"nav": {"use": "omega_acc"}}},  # the spec's stands
+            }
+        )
+        # a stream's rate is over the 2 s up to now: one that stopped shows 0, not its last
+        now = time.time()
+        for k in range(40):  # 4 s at 10 Hz: one stream up to now, one that stopped 5 s ago
+            console.buffers.add("nav/nav_1", now - 4.0 + k / 10, [0.0, 0.0])
+            console.buffers.add("mag/nav_1", now - 9.0 + k / 10, [0.0])
+        rates = console._rates()
+        assert rates["nav/nav_1"] == pytest.approx(10.0, abs=1.0) and rates["mag/nav_1"] == 0.0
+        assert console.classes["e4_rt"] is find_measure("omega_acc")
+        # nodes up before the view started are not "joined" at its start; later ones are
+        import zenoh
+
+        def alive(node: str) -> SimpleNamespace:
+            return SimpleNamespace(key_expr=f"hera/train/alive/{node}", kind=zenoh.SampleKind.PUT)
+
+        console._joined_before = True  # the liveliness history, before the first status
+        console._on_alive(alive("nav_1"))
+        deadline = time.monotonic() + 5.0
+        while console._joined_before and time.monotonic() < deadline:
+            time.sleep(0.01)  # the view's first status (no cluster here: nobody answers)
+        console._on_alive(alive("sonar_1"))
+        assert [(e["node"], e["text"]) for e in console.events] == [("sonar_1", "joined the bus")]
+        assert set(console.peers.up) == {"nav_1", "sonar_1"}
+        assert "lost" not in console.classes and "old" not in console.classes
+        assert console.classes["nav"] is nav
+        assert console.index.label("e4_rt", console.classes["e4_rt"]) == "e4_rt (e4)"
+        assert console._truth_of(console.classes["e4_rt"]) is not None
     finally:
         console.close()
 

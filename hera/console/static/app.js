@@ -297,16 +297,26 @@ function colorOf(labels, label) {
   return COLORS[(i < 0 ? 0 : i) % COLORS.length];
 }
 
-function planeBounds(points, shapes) {
+const PLANE_MIN_SPAN = 0.5;  // m: a scene of a few centimetres would zoom in on the noise
+
+function planeBounds(points, shapes, trailMap) {
+  // the shapes, the points and their trails (so the scale holds while the trails last),
+  // padded by a tenth, at least PLANE_MIN_SPAN wide and high
   let xs = [], ys = [];
   for (const s of shapes) {
     if (s.circle) { const [cx, cy, r] = s.circle; xs.push(cx - r, cx + r); ys.push(cy - r, cy + r); }
     if (s.line) for (const [px, py] of s.line) { xs.push(px); ys.push(py); }
   }
   for (const p of points) { xs.push(p.x); ys.push(p.y); }
+  for (const t of trailMap ? trailMap.values() : []) for (const [px, py] of t) { xs.push(px); ys.push(py); }
   if (!xs.length) return [-1, 1, -1, 1];
-  const pad = 0.1 * Math.max(Math.max(...xs) - Math.min(...xs), Math.max(...ys) - Math.min(...ys), 0.1);
-  return [Math.min(...xs) - pad, Math.max(...xs) + pad, Math.min(...ys) - pad, Math.max(...ys) + pad];
+  let [x0, x1, y0, y1] = [Math.min(...xs), Math.max(...xs), Math.min(...ys), Math.max(...ys)];
+  const pad = 0.1 * Math.max(x1 - x0, y1 - y0);
+  [x0, x1, y0, y1] = [x0 - pad, x1 + pad, y0 - pad, y1 + pad];
+  const grow = (a, b) => b - a >= PLANE_MIN_SPAN ? [a, b] : [(a + b - PLANE_MIN_SPAN) / 2, (a + b + PLANE_MIN_SPAN) / 2];
+  [x0, x1] = grow(x0, x1);
+  [y0, y1] = grow(y0, y1);
+  return [x0, x1, y0, y1];
 }
 
 function drawPlane(container, panel) {
@@ -325,7 +335,8 @@ function drawPlane(container, panel) {
     while (t.length > TRAIL) t.shift();
     tr.set(p.label, t);
   }
-  const [x0, x1, y0, y1] = planeBounds(points, shapes);
+  const [x0, x1, y0, y1] = planeBounds(points, shapes, tr);
+  box.dataset.bounds = [x0, x1, y0, y1].map((v) => v.toFixed(3)).join(",");
   const per = width < 480 ? 2 : 3;
   const legend = 16 * Math.ceil(points.length / per);
   const s = Math.min((width - 8) / (x1 - x0), (height - 8 - legend) / (y1 - y0));
@@ -409,11 +420,12 @@ function drawAttitude(container, panel) {
     ctx.strokeStyle = color; ctx.lineWidth = 2; ctx.stroke(); ctx.lineWidth = 1;
     ctx.fillStyle = color; ctx.font = "12px system-ui, sans-serif";
     const tx = cx + r + 12;
-    ctx.fillText(b.label, tx, cy - 18);
+    ctx.fillText(b.label, tx, cy - 28);
     ctx.fillStyle = "#1d2126"; ctx.font = "11px system-ui, sans-serif";
-    ctx.fillText(`roll ${deg(b.roll)} deg`, tx, cy - 2);
-    ctx.fillText(`pitch ${deg(b.pitch)} deg`, tx, cy + 13);
-    ctx.fillText(`yaw ${deg(b.yaw)} deg, heading ${deg(h)} deg`, tx, cy + 28);
+    ctx.fillText(`roll ${deg(b.roll)} deg`, tx, cy - 12);
+    ctx.fillText(`pitch ${deg(b.pitch)} deg`, tx, cy + 3);
+    ctx.fillText(`yaw ${deg(b.yaw)} deg`, tx, cy + 18);
+    ctx.fillText(`heading ${deg(h)}\u00b0`, tx, cy + 33);
   });
 }
 
