@@ -3,7 +3,8 @@
 ``<run-dir>/measures/<name>_<node>.csv``: no header, rows ``seq,timestamp_ms,v1,v2,...``
 (timestamp = measurement time, epoch milliseconds). Beside it ``<name>_<node>.columns.json``
 names the columns and their units. Each row is flushed as it is written, so a killed process
-loses at most the row being written. At most ``max_open`` files are open at once: the least
+loses at most the row being written (the next process to log the source cuts that row off
+before it appends). At most ``max_open`` files are open at once: the least
 recently written is closed (and opened again, appending, when its source writes again), so
 no number of sources can exhaust the process's file descriptors.
 """
@@ -18,6 +19,33 @@ from typing import IO
 
 from hera.recordings import timestamp_ms
 from hera.store import Sample
+
+
+def cut_partial_row(path: Path) -> None:
+    """Drop the last row of ``path`` when it has no line end: the row a killed writer was
+    writing. Rows appended after it would otherwise continue it, and the file would hold a
+    malformed row in its middle (which readers refuse) instead of one lost row."""
+    try:
+        f = open(path, "rb+")  # noqa: SIM115 - closed below
+    except FileNotFoundError:
+        return
+    with f:
+        end = f.seek(0, 2)
+        if end == 0:
+            return
+        f.seek(end - 1)
+        if f.read(1) in (b"\n", b"\r"):
+            return
+        pos = end
+        while pos > 0:
+            step = min(4096, pos)
+            pos -= step
+            f.seek(pos)
+            cut = f.read(step).rfind(b"\n")
+            if cut >= 0:
+                f.truncate(pos + cut + 1)
+                return
+        f.truncate(0)
 
 
 class CsvLog:
@@ -75,6 +103,7 @@ class CsvLog:
             }
             (self.dir / f"{stem}.columns.json").write_text(json.dumps(sidecar, indent=1))
             self._known.add(source)
+            cut_partial_row(self.dir / f"{stem}.csv")  # a killed writer's, before this process
         f = open(self.dir / f"{stem}.csv", "a", buffering=1)  # noqa: SIM115 - kept open
         self._files[source] = f
         return f
