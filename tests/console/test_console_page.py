@@ -148,9 +148,14 @@ def test_the_page_draws_every_kind_of_view_and_says_when_the_server_is_gone(brow
         stub.fail = True  # the server answers 500: the page says so and keeps its plots
         page.wait_for_function("window.hera.errors > 0", timeout=5000)
         assert page.inner_text("#live") == "no answer from the view server"
+        # the nodes and plots are greyed, the summary says since when (it kept "1/1 up")
+        assert page.evaluate("document.body.classList.contains('stale')")
+        assert page.inner_text("#summary").startswith("no answer since ")
         assert page.locator("#charts .chart").count() == 1
         stub.fail = False
         page.wait_for_function("document.querySelector('#live').className === 'ok'")
+        assert not page.evaluate("document.body.classList.contains('stale')")
+        assert page.inner_text("#summary").startswith("1/1 nodes up")
         bad = page.request.get(url + "api/poll?since=yesterday")
         assert bad.status == 400 and "since" in bad.text()
         assert page.request.get(url + "static/secret.py").status == 404

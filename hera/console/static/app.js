@@ -103,10 +103,19 @@ async function poll(now) {
     update(body, wanted);
     $("live").className = "ok";
     $("live").textContent = "live";
+    document.body.classList.remove("stale");
+    hera.lastAnswer = Date.now() / 1000;
   } catch (e) {
     hera.errors += 1;
     $("live").className = "stale";
     $("live").textContent = "no answer from the view server";
+    // what is on the page is from the last answer: greyed, and the summary says since when
+    // (the cluster may be gone: a stopped hera up takes its view server with it)
+    document.body.classList.add("stale");
+    if (hera.lastAnswer) {
+      $("summary").textContent = `no answer since ${clock(hera.lastAnswer)}: ` +
+        "the nodes and plots below are as they were then";
+    }
   } finally {
     inFlight = false;
     timer = setTimeout(poll, POLL_MS);
