@@ -17,13 +17,17 @@ from __future__ import annotations
 import asyncio
 import ipaddress
 import json
+import logging
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from hera.console.state import Console
 from hera.spec import load_spec
+
+log = logging.getLogger("hera.console")
 
 STATIC = Path(__file__).with_name("static")
 FILES = {"app.js": "text/javascript", "style.css": "text/css"}
@@ -44,8 +48,10 @@ def check_host(host: str) -> str:
     return host
 
 
-def make_app(console: Console) -> Any:
-    """The aiohttp application of the web view of ``console``."""
+def make_app(console: Console | Callable[[], Console]) -> Any:
+    """The aiohttp application of the web view of ``console`` (or of whichever console a
+    callable gives at each request: ``hera view`` swaps it when the cluster restarts)."""
+    current = console if callable(console) else lambda: console
     from aiohttp import web
 
     async def index(request: web.Request) -> web.Response:
@@ -68,7 +74,7 @@ def make_app(console: Console) -> Any:
             raise web.HTTPBadRequest(
                 text=f"since must be epoch seconds, got {since_text!r}"
             ) from None
-        return web.json_response(console.poll(streams, since), dumps=json.dumps)
+        return web.json_response(current().poll(streams, since), dumps=json.dumps)
 
     app = web.Application()
     app.router.add_get("/", index)
@@ -110,7 +116,7 @@ class ConsoleServer:
         from aiohttp import web
 
         asyncio.set_event_loop(self._loop)
-        runner = web.AppRunner(make_app(self.console), access_log=None)
+        runner = web.AppRunner(make_app(lambda: self.console), access_log=None)
         try:
             self._loop.run_until_complete(runner.setup())
             site = web.TCPSite(runner, self.host, self.port)
@@ -135,10 +141,23 @@ class ConsoleServer:
             self._thread.join(5.0)
 
 
+def _run_of(run_dir: Path) -> tuple[int, int] | None:
+    """What identifies the run behind ``run_dir`` (a folder, or the ``hera-run/<cluster>``
+    link to the latest): its ``cluster.json``'s inode and time, None while there is none."""
+    try:
+        st = (Path(run_dir) / "cluster.json").stat()
+    except OSError:
+        return None
+    return st.st_ino, st.st_mtime_ns
+
+
 def serve(run_dir: Path, host: str, port: int, duration: float | None = None) -> int:
     """``hera view``: serve the web view of the cluster of ``run_dir`` until Ctrl-C or
-    ``duration`` s."""
+    ``duration`` s. A cluster started again there (``hera up --run-dir`` the same folder, or
+    a new run the ``hera-run/<cluster>`` link now points to, with new ports) is followed:
+    the view joins it with a fresh console, the page keeps its address."""
     check_host(host)
+    run = _run_of(run_dir)
     console = Console(load_spec(Path(run_dir) / "cluster.json"), run_dir)
     server = ConsoleServer(console, host, port)
     try:
@@ -147,9 +166,20 @@ def serve(run_dir: Path, host: str, port: int, duration: float | None = None) ->
         end = None if duration is None else time.monotonic() + duration
         while end is None or time.monotonic() < end:
             time.sleep(0.2)
+            now = _run_of(run_dir)
+            if now is None or now == run:
+                continue
+            try:
+                fresh = Console(load_spec(Path(run_dir) / "cluster.json"), run_dir)
+            except Exception as e:  # cluster.json half written: the next look reads it
+                log.debug("the new run is not readable yet: %s", e)
+                continue
+            run, old, server.console = now, server.console, fresh
+            old.close()
+            print(f"web view: following the new run of {fresh.spec.name!r}", flush=True)
     except KeyboardInterrupt:
         pass
     finally:
         server.close()
-        console.close()
+        server.console.close()
     return 0

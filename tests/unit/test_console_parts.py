@@ -477,3 +477,48 @@ def test_the_lazily_loaded_runtime_packages_are_never_reloaded(tmp_path, monkeyp
         assert reload.target_modules("rl_user") == ["rl_user"]
     finally:
         sys.modules.pop("rl_user", None)
+
+
+def test_hera_view_follows_a_cluster_started_again_in_its_run_directory(tmp_path):
+    """``hera view`` joined the endpoints of the cluster.json it found at its start, so a
+    cluster started again there (new ports) left it showing 0/4 nodes for good."""
+    import threading
+    import urllib.request
+
+    from hera.console.server import serve
+    from hera.examples import resolve_spec
+    from hera.ports import free_ports
+    from hera.spec import load_spec
+
+    def write_run(name: str) -> None:
+        spec = load_spec(resolve_spec("train")).with_security(auth=False)
+        spec = spec.with_ports(free_ports("127.0.0.1", len(spec.nodes)))
+        text = spec.to_json().replace('"name": "train"', f'"name": "{name}"', 1)
+        (tmp_path / "cluster.json").write_text(text)
+
+    write_run("first")
+    port = free_ports("127.0.0.1", 1)[0]
+    view = threading.Thread(target=serve, args=(tmp_path, "127.0.0.1", port, 8.0))
+    view.start()
+    try:
+
+        def shown() -> str | None:
+            try:
+                url = f"http://127.0.0.1:{port}/api/poll"
+                with urllib.request.urlopen(url, timeout=1) as r:
+                    return json.loads(r.read())["cluster"]["name"]
+            except OSError:
+                return None
+
+        deadline = time.monotonic() + 5
+        while shown() != "first" and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert shown() == "first"
+        write_run("second")  # hera up again in the same folder: a new cluster.json
+        deadline = time.monotonic() + 5
+        while shown() != "second" and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert shown() == "second"
+    finally:
+        view.join(15)
+    assert not view.is_alive()
