@@ -351,10 +351,19 @@ class Launcher:
                 np.starts.popleft()
             if len(np.starts) >= START_BURST:
                 np.state = "failed"
+                last = self._last_line(np.name)
                 self._say(
                     f"node {np.name}: start limit hit ({START_BURST} starts within "
                     f"{START_INTERVAL:g} s); not restarting it"
+                    + (f" (its log ends: {last})" if last else "")
                 )
+                if all(p.state == "failed" for p in self.nodes.values()):
+                    # nothing of this launcher's runs any more: waiting would show an empty
+                    # cluster until Ctrl-C
+                    self.failed = "every node failed" + (
+                        f" (node {np.name}'s log ends: {last})" if last else ""
+                    )
+                    self.stopping.set()
                 return
             np.restarts += 1
             self._spawn(np)
@@ -375,6 +384,15 @@ class Launcher:
         np.state = "restarting"
         np.restart_at = now + RESTART_DELAY
         self._say(f"node {np.name} exited with code {code}; restarting it")
+
+    def _last_line(self, node: str) -> str | None:
+        """The last line a node wrote to its log (its exception, when it died of one)."""
+        try:
+            lines = (self.run_dir / "logs" / f"{node}.log").read_text(errors="replace")
+        except OSError:
+            return None
+        found = [ln.strip() for ln in lines.splitlines() if ln.strip()]
+        return found[-1][:300] if found else None
 
     def _fatal_cause(self, node: str) -> str | None:
         """The cause a node logged before it exited EXIT_CONFIG (its last FATAL line)."""

@@ -409,6 +409,30 @@ args = {{ crash_at = 1, init_log = "{tmp_path / "init.log"}" }}
     assert state["ok"]["state"] == "up" and state["ok"]["restarts"] == 0
 
 
+def test_hera_up_stops_when_every_node_has_failed(tmp_path):
+    """With every node past its start limit nothing runs any more: hera up kept showing an
+    empty cluster until Ctrl-C (or --duration); it stops, exit 1, with the last line of the
+    node's log."""
+    spec = tmp_path / "dying.toml"
+    spec.write_text(
+        '[cluster]\nname = "dying"\n[supervisor]\nintensity = 0\n[[nodes]]\nname = "bad"\n'
+        '[[nodes.measures]]\nuse = "fixture_measures:Crasher"\nname = "crasher"\n'
+        "args = { crash_at = 1 }\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-m", "hera", "up", str(spec), "--duration", "600", "--run-dir",
+         str(tmp_path / "run")],
+        env=cluster_env(tmp_path),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )  # fmt: skip
+    assert out.returncode == 1, out.stdout[-2000:] + out.stderr[-2000:]
+    said = "node bad: start limit hit (5 starts within 10 s); not restarting it (its log ends: "
+    assert said in out.stdout, out.stdout[-2000:]
+    assert "stopped: every node failed (node bad's log ends: " in out.stdout, out.stdout[-2000:]
+
+
 def test_unknown_measure_fails_before_anything_starts(tmp_path):
     spec = tmp_path / "bad.toml"
     spec.write_text(
