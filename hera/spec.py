@@ -605,7 +605,13 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> ClusterSpec:
         world = {}
 
     node_tables = data.get("nodes", [])
-    if not isinstance(node_tables, list) or not node_tables:
+    if isinstance(node_tables, dict):
+        problems.append(
+            f"{source}: [nodes] is a table; nodes are a list of tables: write [[nodes]] "
+            "(two brackets), one per node"
+        )
+        node_tables = []
+    elif not isinstance(node_tables, list) or not node_tables:
         problems.append(f"{source}: [[nodes]]: a spec needs at least one [[nodes]] entry")
         node_tables = []
     nodes: list[dict[str, Any]] = []

@@ -264,6 +264,9 @@ def _store(client: ClusterClient, args: argparse.Namespace) -> int:
         return 1
     if not reply.get("ok"):
         return _refused("store", reply)
+    if args.name is not None and not reply["samples"]:
+        print(f"hera store: {args.node} holds no sample of {args.name!r}", file=sys.stderr)
+        return 1
     if args.json:
         print(json.dumps(reply["samples"], indent=1))
     else:

@@ -292,6 +292,9 @@ def test_echo_hz_and_store_read_the_bus(train):
     assert age_ms < 1000, nav_line  # a 100 Hz stream is fresh
     missing = train.hera("store", "nowhere")
     assert missing.returncode == 2 and "nowhere" in missing.stderr, missing.stderr
+    none = train.hera("store", "computer", "nosuch")  # printed an empty table, exit 0
+    assert none.returncode == 1 and none.stdout == "", none.stdout
+    assert none.stderr.strip() == "hera store: computer holds no sample of 'nosuch'", none.stderr
 
 
 def test_hera_view_serves_the_same_cluster(train):

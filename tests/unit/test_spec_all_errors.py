@@ -236,3 +236,14 @@ def test_a_slot_the_spec_leaves_to_the_class_is_checked_too():
     ), line
     data["cluster"]["sync_lease_ms"] = 150
     runs(data)
+
+
+def test_nodes_written_as_one_table_are_named_so():
+    """[nodes] (one bracket) read as "a spec needs at least one [[nodes]] entry"."""
+    from hera.spec import tomllib
+
+    data = tomllib.loads('[cluster]\nname = "c"\n[nodes]\nname = "a"\n')
+    assert problems_of(data) == [
+        "s.toml: [nodes] is a table; nodes are a list of tables: write [[nodes]] (two "
+        "brackets), one per node"
+    ]
