@@ -159,8 +159,9 @@ def make_certs(
     (``{identity: [host addresses]}``), and the cluster secret if absent; return the
     certificates written."""
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    os.chmod(folder, 0o700)
+    if not folder.exists():  # a folder of the user's keeps its mode (keys are 0600 anyway)
+        folder.mkdir(parents=True)
+        os.chmod(folder, 0o700)
     ca = _ca(folder, cluster)
     if not (folder / SECRET_FILE).exists():
         make_secret(folder / SECRET_FILE)

@@ -166,6 +166,15 @@ def test_certificates_name_the_identity_and_its_hosts(tmp_path):
     assert (tmp_path / "ca.pem").read_bytes() == ca
     issuer = x509.load_pem_x509_certificate((tmp_path / "n2.pem").read_bytes()).issuer
     assert issuer == x509.load_pem_x509_certificate(ca).subject
+    # a folder it makes is the owner's only; one of the user's keeps its mode (it chmodded
+    # the current folder to 0700 for 'hera certs --out .')
+    make_certs(tmp_path / "new", "c", {"n1": []})
+    assert (tmp_path / "new").stat().st_mode & 0o777 == 0o700
+    (tmp_path / "mine").mkdir(mode=0o755)
+    os.chmod(tmp_path / "mine", 0o755)
+    make_certs(tmp_path / "mine", "c", {"n1": []})
+    assert (tmp_path / "mine").stat().st_mode & 0o777 == 0o755
+    assert (tmp_path / "mine" / "ca.key").stat().st_mode & 0o777 == 0o600
 
 
 # -- what Zenoh does with the settings (real sessions on loopback) -------------------------
