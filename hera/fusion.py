@@ -49,6 +49,7 @@ import dataclasses
 import heapq
 import inspect
 import json
+import math
 import threading
 import time
 from collections import deque
@@ -132,8 +133,12 @@ def number_problems(model_class: type, settings: Mapping[str, Any]) -> list[str]
         if kind not in ("float", "int") or rest not in ("", "None") or (value is None and rest):
             continue
         kinds = (int,) if kind == "int" else (int, float)
-        if isinstance(value, bool) or not isinstance(value, kinds):
-            what = "an integer" if kind == "int" else "a number"
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, kinds)
+            or (isinstance(value, float) and not math.isfinite(value))
+        ):
+            what = "an integer" if kind == "int" else "a finite number"
             out.append(f"{key} must be {what}{' or null' if rest else ''}, got {value!r}")
     return out
 

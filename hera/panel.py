@@ -8,12 +8,17 @@ lays one out as aligned text.
 
 from __future__ import annotations
 
+import logging
+import traceback
 from collections import defaultdict
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 from hera.application import Estimate, Panel
 from hera.plugins import AppIndex
+
+log = logging.getLogger("hera.panel")
 
 
 def estimates_panels(
@@ -43,7 +48,16 @@ def estimates_panels(
         if app is None:
             panels.append(plain_panel(estimates))
             continue
-        panel = app.panel(estimates, app.truth(world))
+        try:
+            panel = app.panel(estimates, app.truth(world))
+        except Exception as e:  # an application's bug: its panel says so, the others stand
+            log.warning("panel of application %s failed", app.name, exc_info=True)
+            where = traceback.extract_tb(e.__traceback__)[-1]
+            panel = Panel(
+                f"{app.name}: panel failed ({type(e).__name__}: {e}, "
+                f"{Path(where.filename).name}:{where.lineno})",
+                ("",),
+            )
         if panel is not None:
             panels.append(panel)
     return panels

@@ -240,7 +240,7 @@ class Worker:
                     "measure %s crashed: %s\n%s",
                     self.spec.name,
                     self.error,
-                    "".join(traceback.format_exception(e)[-3:]),
+                    "".join(traceback.format_exception(e)),
                 )
         finally:
             if unfollow is not None:
@@ -464,7 +464,15 @@ class Worker:
         if not batch:
             self.stats.empty += 1
             return
+        width = len(getattr(measure, "columns", ()) or ())
         for reading in batch:
+            if width and hasattr(reading.values, "__len__") and len(reading.values) != width:
+                # a programming error: logged rows of another width made the whole run
+                # unreadable for hera eval; better a crash that names it
+                raise ValueError(
+                    f"measure {self.spec.name} returned {len(reading.values)} values for its "
+                    f"{width} columns ({', '.join(measure.columns)})"
+                )
             if reading.t is None:
                 reading = Reading(reading.values, t_wall)
             self._publish(self.spec.name, reading, grant)

@@ -318,7 +318,13 @@ class Console:
             try:
                 panel = app.web_panel(estimates, self._truth_of(estimates[0].measure))
             except Exception as e:  # an application's bug must not take the view down
-                out.append({"title": f"{app.name}: panel failed ({e})", "kind": "error"})
+                log.warning("web panel of application %s failed", app.name, exc_info=True)
+                out.append(
+                    {
+                        "title": f"{app.name}: panel failed ({type(e).__name__}: {e})",
+                        "kind": "error",
+                    }
+                )
                 continue
             if panel is not None:
                 out.append({"title": panel.title, "kind": panel.kind, "data": panel.data})

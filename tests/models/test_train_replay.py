@@ -131,7 +131,7 @@ def test_set_overrides_a_model_setting_and_the_world(sim, tmp_path):
     ("override", "says"),
     [
         ("track_radius.radiuss=0.57", "has no setting 'radiuss' (did you mean 'radius'?)"),
-        ("track_radius.radius=abc", "radius must be a number or null, got 'abc'"),
+        ("track_radius.radius=abc", "radius must be a finite number or null, got 'abc'"),
         ("track_mag.radius=0.57", "no model 'track_mag' among the replayed ones"),
         ("world.radiuss=0.6", "unknown world keys for scenario 'train': ['radiuss']"),
         ("radius=0.57", "expected MODEL.SETTING=VALUE or world.KEY=VALUE"),

@@ -156,9 +156,11 @@ def test_up_with_credentials_it_cannot_read_makes_no_run_directory(tmp_path):
 @pytest.mark.parametrize(
     ("settings", "problem"),
     [
-        ('radius = "x"', "radius must be a number or null, got 'x'"),
+        ('radius = "x"', "radius must be a finite number or null, got 'x'"),
         ("lock_count = 2.5", "lock_count must be an integer, got 2.5"),
-        ("var_acc = true", "var_acc must be a number, got True"),
+        ("var_acc = true", "var_acc must be a finite number, got True"),
+        ("var_acc = nan", "var_acc must be a finite number, got nan"),  # it crash-looped
+        ("radius = inf", "radius must be a finite number or null, got inf"),
     ],
 )
 def test_a_model_setting_of_the_wrong_kind_is_refused_before_start(tmp_path, settings, problem):

@@ -44,3 +44,35 @@ def test_panels_are_aligned_columns():
     assert lines[0] == "t:"
     assert lines[1] == "model       value"
     assert lines[3] == "longer name  22.5"
+
+
+def test_a_panel_that_raises_names_its_application_and_line_and_hides_no_other():
+    """A KeyError in a user's panel() showed as 'estimates: query failed ('velocity [m/s]')'
+    every second, logged nowhere, and took every other application's panel with it."""
+
+    class Broken(Application):
+        name = "cart"
+
+        def panel(self, estimates, truth):
+            return Panel("cart", ("v",), ((estimates[0].values["velocity [m/s]"],),))
+
+    class Thing:
+        columns = ("a [m]",)
+
+    class Other:
+        columns = ("a [m]",)
+
+    broken, train = Broken(), TrainApp()
+    index = AppIndex([broken, train])
+    index.app_of = lambda cls: broken if cls is Thing else train if cls is TrackMag else None
+    samples = [
+        {"name": "thing", "node": "n", "t": 1.0, "values": [1.5]},
+        {"name": "track_mag", "node": "c", "t": 1.0e9 + 5.0, "values": [0.6, 0.0, 0.0, 0.84, 0.6]},
+        {"name": "other", "node": "n", "t": 1.0, "values": [2.5]},
+    ]
+    classes = {"thing": Thing, "track_mag": TrackMag, "other": Other}
+    panels = estimates_panels(classes, samples, WORLD, index)
+    titles = [p.title for p in panels]
+    assert titles[0].startswith("cart: panel failed (KeyError: 'velocity [m/s]', test_panel.py:")
+    assert any(t.startswith("estimates") for t in titles)  # the train's stands
+    assert panels[-1].rows == (("other", "n", "a [m]=2.5"),)

@@ -282,3 +282,30 @@ def test_retire_now_does_not_wait_for_a_long_period():
     w.retire(handed.append, now=True)
     assert done.wait(period / 2)  # long before its next deadline
     assert handed == [w] and not w.cancel_retire()  # once handed over, it cannot be taken back
+
+
+class TwoForThree(Measure):
+    columns = ("x [m]", "v [m/s]", "b [m/s^2]")
+
+    def measure(self):
+        return [1.0, 2.0]
+
+
+def test_a_reading_of_another_width_than_the_columns_is_a_crash_that_says_so():
+    """A model returning 2 values for its 3 columns was published and logged, and hera eval
+    then refused the whole run ("2 values where the rows have 3")."""
+    ctx = make_ctx("w", period=0.01, iterations=3)
+    published, errors, done = [], [], threading.Event()
+    w = Worker(
+        TwoForThree,
+        {},
+        ctx,
+        lambda name, r, g: published.append(r),
+        lambda w, e: (errors.append(e), done.set()),
+    )
+    w.start()
+    assert done.wait(30)
+    assert published == []
+    assert str(errors[0]) == (
+        "measure w returned 2 values for its 3 columns (x [m], v [m/s], b [m/s^2])"
+    )
