@@ -334,14 +334,14 @@ class FusionMeasure(Measure):
                         f"{where}: model: unknown setting {key!r}{did_you_mean(str(key), known)}"
                         f"; known settings: {', '.join(known)}"
                     )
-        if not problems and isinstance(model, Mapping):
-            problems += [f"{where}: model: {p}" for p in number_problems(cls.model_class, model)]
         check = getattr(cls.model_class, "check", None)
         if not problems and isinstance(model, Mapping) and callable(check):
-            try:
+            try:  # the model's own check first: it knows the ranges, not only the kinds
                 check({**dict(model), **cls.model_fixed})
             except (TypeError, ValueError) as e:
                 problems.append(f"{where}: model: {e}")
+        if not problems and isinstance(model, Mapping):
+            problems += [f"{where}: model: {p}" for p in number_problems(cls.model_class, model)]
         return problems
 
     @classmethod
