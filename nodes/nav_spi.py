@@ -353,7 +353,8 @@ class SpiPmodNav:
                 wall = wallclock.now() - (mono() - made)
                 return wall, new[2:], acc
             before, old = began, new
-            if mono() > deadline:
+            if began > deadline:  # a poll begun past the deadline saw nothing new (a pause
+                # between the poll and this check is not a dropout)
                 raise NoReading(f"{self.ag.where}: no new sample in {self.timeout * 1e3:g} ms")
 
     # -- NavDriver ---------------------------------------------------------------------------
