@@ -5,7 +5,8 @@ Kinds and parameters (all optional unless said):
 - ``stuck``: readings freeze at the first value read under the fault, or at ``value``;
 - ``dropout``: each reading is missing (:class:`NoReading`) with probability ``prob`` (1.0);
 - ``spikes``: with probability ``prob`` (0.1) one axis gets +/- ``magnitude`` (driver units;
-  default per sensor: acc 2 g, gyro 200 deg/s, mag 1 gauss, baro 50 hPa, range 100 in);
+  default per sensor: acc 2 g, gyro 200 deg/s, mag 1 gauss, baro 50 hPa, range 100 in,
+  wheels 100 counts);
 - ``bias``: ``value`` (required; a number or one per axis) is added to the readings;
 - ``disconnect``: every read raises :class:`BoardDisconnected`;
 - ``field``: an external field fixed in the **world** frame, ``value`` (required: one number
@@ -31,7 +32,14 @@ from typing import Any
 from hera.nodes.driver import BoardDisconnected, NoReading
 
 KINDS = ("stuck", "dropout", "spikes", "bias", "disconnect", "field")
-SPIKE_DEFAULT = {"acc": 2.0, "gyro": 200.0, "mag": 1.0, "baro": 50.0, "range": 100.0}
+SPIKE_DEFAULT = {
+    "acc": 2.0,
+    "gyro": 200.0,
+    "mag": 1.0,
+    "baro": 50.0,
+    "range": 100.0,
+    "wheels": 100.0,
+}
 _PARAMS = {
     "stuck": {"value"},
     "dropout": {"prob"},

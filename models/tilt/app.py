@@ -1,5 +1,6 @@
 """The 2-D tilt application (entry point ``tilt2d`` of ``hera.apps``): truth, scores, plots
-and live panel of ``tilt_split``, ``tilt_ekf``, ``tilt_ukf`` and ``tilt_bias`` (seed 003).
+and live panel of ``tilt_split``, ``tilt_ekf``, ``tilt_ukf``, ``tilt_bias`` and
+``tilt_wheels`` (seed 003).
 
 Scores (``hera eval``; degrees, s since a filter's first estimate):
 
@@ -101,8 +102,8 @@ class TiltApp(Application):
     """2-D tilt of a self-balancing robot, gyroscope bias calibrated or estimated (seed 003)."""
 
     name = "tilt2d"
-    title = "2-D tilt of a self-balancing robot: split filter, EKF, UKF, bias EKF (seed 003)"
-    measures = ("tilt_split", "tilt_ekf", "tilt_ukf", "tilt_bias")
+    title = "2-D tilt of a self-balancing robot: split filter, EKF, UKF, bias EKFs (seed 003)"
+    measures = ("tilt_split", "tilt_ekf", "tilt_ukf", "tilt_bias", "tilt_wheels")
     metrics = (
         Metric("converge_s", "converge", "s"),
         Metric("still_deg", "still noise", "deg"),

@@ -1,4 +1,4 @@
-"""The four tilt filters of seed 003 on one interface: ``step(dt, g_y, b_gyro, acc)``.
+"""The tilt filters of seed 003 on one interface: ``step(dt, g_y, b_gyro, acc)``.
 
 =========  ====================================================================================
 filter     what
@@ -10,6 +10,8 @@ ekf        :class:`hera.estimation.ExtendedKalmanFilter` on eqs. 25-26
 ukf        :class:`hera.estimation.UnscentedKalmanFilter` on eqs. 25-26, the seed's
            appendix A parameters (alpha 1, beta 2, kappa 3 - n)
 bias       an EKF with b_gyro as a third state (a random walk), the gyroscope raw as input
+wheels     the bias filter with the robot's model and its wheel encoders
+           (:mod:`hera.models.tilt.wheels`)
 =========  ====================================================================================
 
 split and ekf compute the same numbers (to rounding); ukf differs where the measurement's
@@ -32,7 +34,7 @@ from hera.estimation import (
 )
 from hera.models.tilt.equations import F2, F3, F4, H, f2, f2_batch, f3, f4, h, h_batch
 
-FILTERS = ("split", "ekf", "ukf", "bias")
+FILTERS = ("split", "ekf", "ukf", "bias", "wheels")
 
 
 class SplitFilter:
@@ -105,7 +107,28 @@ class SplitFilter:
         return True
 
 
-class LibraryFilter:
+class OnLibrary:
+    """A filter kept in ``self.f``, a :mod:`hera.estimation` filter: its state, covariance
+    and the widening of theta (state 0) after lost samples."""
+
+    f: ExtendedKalmanFilter | UnscentedKalmanFilter
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.f.x
+
+    @property
+    def P(self) -> np.ndarray:
+        return self.f.P
+
+    def widen(self, var: float) -> None:
+        """Add ``var`` (rad^2) to theta's variance: a rotation nobody measured."""
+        P = self.f.P.copy()
+        P[0, 0] += var
+        self.f.reset(self.f.x, P)
+
+
+class LibraryFilter(OnLibrary):
     """The EKF, UKF or bias filter on :mod:`hera.estimation` (see the module docstring)."""
 
     def __init__(
@@ -139,20 +162,6 @@ class LibraryFilter:
             )
         else:
             raise ValueError(f"unknown filter {kind!r}: use one of {', '.join(FILTERS)}")
-
-    @property
-    def x(self) -> np.ndarray:
-        return self.f.x
-
-    @property
-    def P(self) -> np.ndarray:
-        return self.f.P
-
-    def widen(self, var: float) -> None:
-        """Add ``var`` (rad^2) to theta's variance: a rotation nobody measured."""
-        P = self.f.P.copy()
-        P[0, 0] += var
-        self.f.reset(self.f.x, P)
 
     def step(
         self,

@@ -1,6 +1,6 @@
 """The tilt filters as measures (seed 003): ``tilt_split`` (the seed's filter, Table 8),
-``tilt_ekf``, ``tilt_ukf`` and ``tilt_bias`` (b_gyro as a third state); see
-:mod:`hera.models.tilt.tilt`."""
+``tilt_ekf``, ``tilt_ukf``, ``tilt_bias`` (b_gyro as a third state) and ``tilt_wheels`` (the
+bias filter with the robot's model and its wheel encoders); see :mod:`hera.models.tilt.tilt`."""
 
 from __future__ import annotations
 
@@ -43,3 +43,12 @@ class TiltBias(_Tilt):
     name = "tilt_bias"
     model_fixed = {"kind": "bias"}
     columns = columns_of("bias")
+
+
+class TiltWheels(_Tilt):
+    """``tilt_wheels``: the bias EKF with the robot's model and its wheel encoders (inputs
+    ``[imu, wheels]``: an ``lsm6dsl`` and a ``wheel_encoder`` measure)."""
+
+    name = "tilt_wheels"
+    model_fixed = {"kind": "wheels"}
+    columns = columns_of("wheels")

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from collections.abc import Mapping
 from typing import Any
 
@@ -109,9 +110,13 @@ class CalibrationDesk:
 
 def open_imu(ctx: MeasureContext, args: Mapping[str, Any]) -> Any:
     """The LSM6DSL ``args["board"]`` of ``ctx.node``: one registered under that id, else the
-    driver the args name, else a simulator built from ``ctx.world`` and the arg ``model``."""
+    driver the args name, else a simulator built from ``ctx.world`` and the arg ``model``,
+    sampling on its own clock (``stamps = "chip"``: a node's timing does not change the
+    samples; on a node's virtual clock it makes a sample at each read)."""
 
     def make(bid: str, seed: int) -> SimLsm6dsl:
+        clock = ctx.resources.get(boards.CLOCK)
+        timing = {"clock": clock} if clock is not None else {"stamps": "chip", "sleep": time.sleep}
         return SimLsm6dsl(
             bid,
             make_scenario(ctx.world),
@@ -119,6 +124,7 @@ def open_imu(ctx: MeasureContext, args: Mapping[str, Any]) -> Any:
             ImuModel.from_args(args.get("model")),
             seed,
             odr_hz=float(args.get("odr_hz", 26.0)),
+            **timing,
         )
 
     return boards.open_board(ctx, args, "imu", Lsm6dslDriver, "an LSM6DSL driver", make, "lsm6dsl")

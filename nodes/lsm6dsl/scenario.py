@@ -17,9 +17,9 @@ scored on. The accelerometer feels the wheels: balancing, the axle accelerates b
 a_w = (g sin theta - L theta'') / cos theta (an inverted pendulum of effective length
 ``pendulum_m`` on a cart), so at ``sensor_m`` up the body the board reads, besides gravity,
 (sensor_m - L) theta'' along x and the centripetal sensor_m theta'^2: what the seed calls
-"parasite accelerations". The axle's travel is not tracked: position and velocity are
-relative to the axle; acceleration is absolute. The motors shake the body
-(``vibration_acc`` m/s^2, ``vibration_gyro`` rad/s, while they run).
+"parasite accelerations". The motion's position and velocity are the board's relative to
+the axle; its acceleration is absolute. The motors shake the body (``vibration_acc``
+m/s^2, ``vibration_gyro`` rad/s, while they run).
 
 By default the wheels need no torque to turn (massless, of no size), so the board reads no
 tilt while the robot balances. ``reaction_k`` > 0 gives them the motor torque that drives
@@ -28,12 +28,23 @@ m and l the body's mass and its centre of mass over the axle, M the robot's mass
 wheels' inertia I_w / r^2, ``reaction_k`` = r M / (m l)): the axle then accelerates by
 a_w = (g sin theta - (L + r) theta'') / ((1 + k) cos theta), and the board reads a share
 k / (1 + k) of the slow tilt (linearised wheeled inverted pendulum).
+
+The axle's travel along the world's x (+ forward; what wheel encoders count,
+:mod:`hera.nodes.wheels`) is :meth:`Balancing.axle`: the double integral of the a_w above
+from 0 m, 0 m/s at the epoch (so 0 until the robot first rises). A push is an external
+impulse on the body: theta' steps at its kick, the axle's velocity does not. Nothing brings
+the robot back: each rise and each push leave it driving on at some speed (a random walk of
+speeds over the pushes), as a_w says; parked, it coasts at the speed it had (a_w is 0 on the
+stand).
 """
 
 from __future__ import annotations
 
 import math
 import random
+import threading
+from array import array
+from bisect import bisect_right
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -43,6 +54,25 @@ from hera.nodes.world import G, Motion, Scenario, number, register_scenario
 
 PUSH_WINDOW_S = 4.0
 """A push counts as under way for this long after the kick (the segment ``push``)."""
+
+AXLE_STEP_S = 0.01
+"""Step (s) of the axle's integration grid (3-point Gauss-Legendre per step)."""
+AXLE_CHECKPOINT_S = 1.0
+"""Seconds between two kept checkpoints (position, velocity) of the axle's integration."""
+AXLE_MAX_S = 1.0e6
+"""How far from the epoch (s, 11.6 days) the axle is tracked: further is refused (a wrong
+epoch, rather than hours of integration)."""
+
+_GAUSS = tuple(
+    (0.5 + c, w)
+    for c, w in (
+        (-math.sqrt(15.0) / 10.0, 5.0 / 18.0),
+        (0.0, 8.0 / 18.0),
+        (math.sqrt(15.0) / 10.0, 5.0 / 18.0),
+    )
+)
+"""Nodes (fractions of a step) and weights of 3-point Gauss-Legendre quadrature: exact for
+polynomials up to degree 5, and it never evaluates a step's ends (where a_w may jump)."""
 
 
 class Balancing(Scenario):
@@ -160,6 +190,57 @@ class Balancing(Scenario):
         """Whether the motors run (the robot is off its stand)."""
         return self._standing(tau)[0] > 0.0
 
+    def balancing(self, tau: float) -> bool:
+        """Whether the robot balances on its wheels: off its stand, up and not getting up
+        or down (its controller's balance loop runs)."""
+        return self._standing(tau)[0] >= 1.0
+
+    def axle(self, tau: float) -> tuple[float, float]:
+        """The axle's position (m) and velocity (m/s) along the world's x at ``tau`` s since
+        the epoch: the double integral of the a_w :meth:`motion` uses, from 0, 0 at tau <= 0.
+        A pure function of ``tau`` (see :class:`_AxleTrack`); ValueError beyond
+        :data:`AXLE_MAX_S`."""
+        return self._axle_track().at(tau)
+
+    def axle_acc(self, tau: float) -> float:
+        """The axle's acceleration a_w (m/s^2, world x) at ``tau``: what :meth:`motion` adds
+        to the board's."""
+        th, _, ddth = self.theta(tau)
+        w = max(0.0, min(1.0, self._standing(tau)[0]))
+        if w == 0.0:
+            return 0.0
+        return (
+            w
+            * (G * math.sin(th) - (self.pendulum + self.wheel_radius) * ddth)
+            / ((1 + self.reaction_k) * math.cos(th))
+        )
+
+    def axle_breaks(self, t0: float, t1: float) -> list[float]:
+        """The times within (t0, t1), sorted, where a_w jumps or turns sharply: a push's kick
+        (theta'' steps) and the end of its horizon (its swing is dropped), the start and end
+        of each rise and parking (minimum-jerk ramps)."""
+        out = []
+        for start in (self.still_s, *(t for w in self.parked for t in w)):
+            out += [start, start + self.rise_s]
+        decay = self.zeta * self.push_w
+        horizon = 6.0 / max(decay, 1e-3)
+        k = max(0, math.floor((t0 - horizon - self.first_push) / self.push_every))
+        while (kick := self.first_push + k * self.push_every) < t1:
+            out += [kick, kick + horizon]
+            k += 1
+        return sorted({t for t in out if t0 < t < t1})
+
+    def _axle_track(self) -> _AxleTrack:
+        track = self.__dict__.get("_track")
+        if track is None:
+            track = self.__dict__.setdefault("_track", _AxleTrack(self))
+        return track
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        state.pop("_track", None)  # a cache, with a lock
+        return state
+
     def segment(self, tau: float) -> str:
         """``still`` (on the stand), ``rise`` (getting up or down), ``push`` (a push under
         way) or ``sway`` (balancing)."""
@@ -198,6 +279,84 @@ class Balancing(Scenario):
             position=(self.sensor * math.sin(self.lean), 0.0, self.sensor * math.cos(self.lean)),
             orientation=gm.axis_angle((0.0, 1.0, 0.0), self.lean),
         )
+
+
+class _AxleTrack:
+    """The axle's travel of one :class:`Balancing`: a_w integrated on a fixed grid.
+
+    The grid: every :data:`AXLE_STEP_S` from the epoch, plus each of the scenario's
+    :meth:`~Balancing.axle_breaks` (so no step straddles a jump of a_w); each step is one
+    3-point Gauss-Legendre quadrature of v' = a_w and of x'' = a_w (x(t0 + d) = x0 + v0 d +
+    d^2 int_0^1 (1 - c) a(t0 + c d) dc). Checkpoints (x, v) every :data:`AXLE_CHECKPOINT_S`
+    are made in order, once, and kept (16 bytes each: 1.4 MB a day); the grid of the last
+    second read is cached, and a read is its grid node at or before ``tau`` and one more
+    quadrature step to ``tau``. So a value depends on ``tau`` alone, whatever was read
+    before (reads in any order); reads moving forward cost a few a_w evaluations each, and
+    about 300 a_w evaluations per second crossed. Thread-safe."""
+
+    def __init__(self, scenario: Balancing) -> None:
+        self.sc = scenario
+        self.xs = array("d", [0.0])  # checkpoint k: at k * AXLE_CHECKPOINT_S
+        self.vs = array("d", [0.0])
+        self._lock = threading.Lock()
+        self._window: tuple[int, list[float], list[float], list[float]] | None = None
+
+    def at(self, tau: float) -> tuple[float, float]:
+        if not tau > 0.0:
+            return 0.0, 0.0
+        if not tau <= AXLE_MAX_S:
+            raise ValueError(
+                f"the balancing robot's axle is tracked for {AXLE_MAX_S:g} s from the epoch, "
+                f"asked at {tau:g} s: is the world's epoch right?"
+            )
+        i = int(tau // AXLE_CHECKPOINT_S)
+        with self._lock:
+            while len(self.xs) <= i:
+                self._grid(len(self.xs) - 1)
+            times, xs, vs = self._grid(i)
+        j = bisect_right(times, tau) - 1
+        if times[j] == tau:
+            return xs[j], vs[j]
+        return self._step(times[j], xs[j], vs[j], tau)
+
+    def _grid(self, i: int) -> tuple[list[float], list[float], list[float]]:
+        """The grid of second ``i`` (times, positions, velocities) from its checkpoint; the
+        next checkpoint is appended when it is the first to reach it."""
+        if self._window is not None and self._window[0] == i:
+            return self._window[1:]
+        t0 = i * AXLE_CHECKPOINT_S
+        t1 = (i + 1) * AXLE_CHECKPOINT_S
+        n = round(AXLE_CHECKPOINT_S / AXLE_STEP_S)
+        times = [t0 + j * AXLE_STEP_S for j in range(n)] + [t1]
+        breaks = [b for b in self.sc.axle_breaks(t0, t1) if _far(times, b)]
+        if breaks:
+            times = sorted(times + breaks)
+        xs, vs = [self.xs[i]], [self.vs[i]]
+        for a, b in zip(times, times[1:], strict=False):
+            x, v = self._step(a, xs[-1], vs[-1], b)
+            xs.append(x)
+            vs.append(v)
+        if len(self.xs) == i + 1:
+            self.xs.append(xs[-1])
+            self.vs.append(vs[-1])
+        self._window = (i, times, xs, vs)
+        return times, xs, vs
+
+    def _step(self, t0: float, x0: float, v0: float, t1: float) -> tuple[float, float]:
+        """(x, v) at ``t1`` from (x0, v0) at ``t0``: one Gauss-Legendre step."""
+        d = t1 - t0
+        dv = dx = 0.0
+        for c, w in _GAUSS:
+            a = w * self.sc.axle_acc(t0 + c * d)
+            dv += a
+            dx += (1.0 - c) * a
+        return x0 + v0 * d + d * d * dx, v0 + d * dv
+
+
+def _far(times: list[float], t: float, tol: float = 1e-9) -> bool:
+    """Whether ``t`` is more than ``tol`` from every one of the sorted ``times``."""
+    j = bisect_right(times, t)
+    return all(abs(times[k] - t) > tol for k in (j - 1, j) if 0 <= k < len(times))
 
 
 def _parked(w: Mapping[str, Any]) -> list[list[float]]:

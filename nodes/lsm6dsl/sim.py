@@ -4,7 +4,16 @@
 It implements :class:`hera.nodes.lsm6dsl.driver.Lsm6dslDriver` and
 :class:`hera.nodes.driver.SimulatedBoard`, and takes the board faults of
 :mod:`hera.nodes.fault_model` (sensors ``acc`` and ``gyro``). Readings are a pure function of
-(seed, scenario, reading times).
+(seed, scenario, sample times).
+
+Sample times (``stamps``): ``"read"`` makes a sample at each read, stamped then (what a
+fake clock in a test steps through); ``"chip"`` samples on the chip's own clock, as a real
+LSM6DSL does: at epoch + phase + k / ODR, the phase drawn from the seed. A read then gives
+the oldest sample not read yet and says in ``pending`` how many more are made (a FIFO of
+``FIFO_SAMPLES``; older ones are lost); a read before the next sample waits for it when it
+is due within half a period (``sleep``), as the I2C driver waits for data-ready, and is a
+dropout otherwise. So the samples a live run gets do not depend on when its node got round
+to reading them.
 """
 
 from __future__ import annotations
@@ -15,6 +24,7 @@ from collections.abc import Callable
 from typing import Any
 
 from hera.nodes import geometry as gm
+from hera.nodes.driver import NoReading
 from hera.nodes.fault_model import FaultState
 from hera.nodes.geometry import IDENTITY, Vec3
 from hera.nodes.imu_model import ideal_acc
@@ -24,6 +34,9 @@ from hera.nodes.noise import KeyedRandom, RandomWalk
 from hera.nodes.world import G, Scenario, State, state_at, state_of
 
 SENSORS = {"acc": 3, "gyro": 3}
+FIFO_SAMPLES = 64
+"""Samples the simulated chip keeps for a late reader (``stamps = "chip"``)."""
+STAMPS = ("read", "chip")
 
 
 class SimLsm6dsl:
@@ -42,9 +55,13 @@ class SimLsm6dsl:
         seed: int,
         odr_hz: float = 26.0,
         clock: Callable[[], float] = time.time,
+        stamps: str = "read",
+        sleep: Callable[[float], None] | None = None,
     ) -> None:
         if odr_hz not in ODRS_HZ:
             raise ValueError(f"LSM6DSL output data rate must be one of {ODRS_HZ} Hz, got {odr_hz}")
+        if stamps not in STAMPS:
+            raise ValueError(f"LSM6DSL stamps must be one of {STAMPS}, got {stamps!r}")
         self.id = board_id
         self.scenario, self.epoch, self.model = scenario, float(epoch), model
         self.seed, self.odr_hz, self.clock = int(seed), float(odr_hz), clock
@@ -59,6 +76,12 @@ class SimLsm6dsl:
         self.gyro_noise = model.gyro_density * bw
         self.faults = FaultState(SENSORS)
         self.reads = 0
+        self.stamps, self.sleep = stamps, sleep
+        self.phase = self.rand.constant("odr_phase").uniform(0.0, 1.0 / self.odr_hz)
+        self.pending = 0
+        self.lost = 0
+        """Samples the chip's FIFO overran (``stamps = "chip"``)."""
+        self._next: int | None = None
 
     def _const(self, given: Vec3 | None, stream: str, sigma: float) -> Vec3:
         if given is not None:
@@ -81,8 +104,32 @@ class SimLsm6dsl:
         return tuple(self.gyro_bias[i] + self.walks[i](tau) + r for i in range(3))  # type: ignore[return-value]
 
     # -- Lsm6dslDriver -------------------------------------------------------------------------
+    def _chip_time(self, now: float) -> float:
+        """The time of the oldest sample not read yet (``stamps = "chip"``); see the module
+        docstring. NoReading when none is made and none is due within half a period."""
+        period = 1.0 / self.odr_hz
+        base = self.epoch + self.phase
+        made = math.floor((now - base) / period + 1e-9)
+        if self._next is None:
+            self._next = made
+        if made < self._next:
+            wait = base + self._next * period - now
+            if self.sleep is None or wait > period / 2.0:
+                raise NoReading(f"no new sample: the next is due in {wait * 1e3:.1f} ms")
+            self.sleep(max(0.0, wait))
+            made = self._next
+        if made - self._next >= FIFO_SAMPLES:
+            self.lost += made - self._next - FIFO_SAMPLES + 1
+            self._next = made - FIFO_SAMPLES + 1
+        k = self._next
+        self._next = k + 1
+        self.pending = made - k
+        return base + k * period
+
     def read_imu(self) -> ImuReading:
         t = self.clock()
+        if self.stamps == "chip":
+            t = self._chip_time(t)
         tau = t - self.epoch
         rng = self.rand.rng("imu", t)
         self.faults.before_read("acc", rng)
@@ -126,6 +173,8 @@ class SimLsm6dsl:
             "odr_hz": self.odr_hz,
             "sensors": sorted(SENSORS),
             "reads": self.reads,
+            "stamps": self.stamps,
+            "fifo_lost": self.lost,
             "fault": None if f is None else f.describe(),
         }
 

@@ -4,20 +4,23 @@ detection, the ``lsm6dsl`` measure and its ``gyro_calibration`` verb (seed 003).
 from __future__ import annotations
 
 import math
+import random
 import statistics
 
+import numpy as np
 import pytest
 from nodes_helpers import FakeClock, boards_of, make_ctx
 
 from hera.application import VerbContext
 from hera.args import ArgsStore
 from hera.nodes import geometry as gm
+from hera.nodes.driver import NoReading
 from hera.nodes.lsm6dsl.app import gyro_calibration
 from hera.nodes.lsm6dsl.calibration import DONE, MOVING, GyroCalibration
 from hera.nodes.lsm6dsl.measures import CALIBRATED, CALIBRATING, Lsm6dsl
 from hera.nodes.lsm6dsl.model import ImuModel
 from hera.nodes.lsm6dsl.scenario import Balancing
-from hera.nodes.lsm6dsl.sim import SimLsm6dsl, mean_rate
+from hera.nodes.lsm6dsl.sim import FIFO_SAMPLES, SimLsm6dsl, mean_rate
 from hera.nodes.world import G, Motion, Scenario, make_scenario
 
 ODR = 26.0
@@ -76,6 +79,74 @@ def test_a_ramp_drifts_the_gyro_bias_as_asked():
     assert model.ramp(100.0) == pytest.approx(0.5)
     b = imu(Leaning(0.0), gyro_ramp_dps_s=0.5 / 60, ramp_start_s=10.0, gyro_drift=0.0)
     assert b.bias(80.0)[1] - b.bias(5.0)[1] == pytest.approx(0.5)
+
+
+def _chip(reads, seed=3, sleep=None):
+    """A chip-clocked board read at ``reads`` (epoch s): every sample read, in order."""
+    now = [0.0]
+    b = SimLsm6dsl(
+        "robot/imu",
+        make_scenario({"scenario": "balancing"}),
+        0.0,
+        ImuModel(),
+        seed,
+        ODR,
+        clock=lambda: now[0],
+        stamps="chip",
+        sleep=sleep,
+    )
+    got = []
+    for t in reads:
+        now[0] = t
+        try:
+            got.append(b.read_imu())
+        except NoReading:
+            continue
+        while b.pending:
+            got.append(b.read_imu())
+    return b, got
+
+
+def test_on_its_own_clock_the_chip_gives_every_sample_once_whatever_the_read_times():
+    rnd = random.Random(5)
+    steady = [20.0 + k / ODR for k in range(300)]
+    jittery = [t + rnd.gauss(0.0, 0.004) for t in steady]
+    late = [20.0 + k * 3 / ODR for k in range(100)]  # a node that reads every third period
+    b, a = _chip(steady)
+    _, j = _chip(jittery, sleep=lambda s: None)
+    _, s3 = _chip(late)
+    period = 1.0 / ODR
+    assert np.allclose(np.diff([r.t for r in a]), period, atol=1e-9)
+    assert (a[0].t - b.phase) * ODR == pytest.approx(round((a[0].t - b.phase) * ODR), abs=1e-6)
+    n = min(len(a), len(j), len(s3)) - 3
+    assert n > 250
+    for x, y, z in zip(a[1:n], j[1:n], s3[1:n], strict=True):  # the same samples, read alike
+        assert x == y == z
+    assert _chip(steady, seed=4)[0].phase != b.phase  # the phase is the chip's (its seed)
+
+
+def test_a_read_before_the_next_sample_waits_for_it_or_is_a_dropout():
+    slept = []
+    b, got = _chip([30.0], sleep=slept.append)
+    nxt = got[-1].t + 1.0 / ODR
+    b.clock = lambda: nxt - 0.01  # 10 ms early: within half a period, it waits
+    assert b.read_imu().t == pytest.approx(nxt) and slept == [pytest.approx(0.01)]
+    b.clock = lambda: nxt + 1.0 / ODR - 0.03  # 30 ms early: more than half a period
+    with pytest.raises(NoReading, match="no new sample: the next is due in 30.0 ms"):
+        b.read_imu()
+    b.sleep = None  # without a way to wait, even a little early is a dropout
+    b.clock = lambda: nxt + 1.0 / ODR - 0.001
+    with pytest.raises(NoReading):
+        b.read_imu()
+
+
+def test_a_reader_too_late_for_the_fifo_loses_the_oldest_samples():
+    b, got = _chip([10.0, 10.0 + 100 / ODR])
+    assert len(got) == 1 + FIFO_SAMPLES and b.lost == 100 - FIFO_SAMPLES
+    assert got[1].t == pytest.approx(got[0].t + (100 - FIFO_SAMPLES + 1) / ODR)
+    assert b.describe()["fifo_lost"] == b.lost and b.describe()["stamps"] == "chip"
+    with pytest.raises(ValueError, match="stamps must be one of"):
+        SimLsm6dsl("x", Leaning(0.0), 0.0, ImuModel(), 1, stamps="late")
 
 
 def test_bad_output_data_rates_and_models_are_refused():

@@ -1,0 +1,1 @@
+"""Wheel encoders of the balancing robot: driver protocol, simulator, ``wheel_encoder`` measure."""
