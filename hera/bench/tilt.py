@@ -4,8 +4,10 @@ seed's operation counts (Table 5).
 The same stream of samples (a robot swinging 20 deg at 0.8 Hz, 26 Hz, noisy accelerometer and
 gyroscope) goes through the seed's split filter (Table 8, written out on scalars), the full
 EKF and the UKF (:mod:`hera.estimation`), all on eqs. 25-26 (n = 2 states, m = 2
-measurements, p = 2 commands), and the EKF with the bias as a third state (n = 3, p = 1).
-A step is one sample: evolution with the gyroscope, correction with the accelerometer. The
+measurements, p = 2 commands), the EKF with the bias as a third state (n = 3, p = 1), and
+the bias filter with the robot's model and its wheels (n = 4, p = 1, two scalar corrections:
+the accelerometer's tilt and the wheels' travel, which is not Table 5's form). A step is one
+sample: evolution with the gyroscope, correction with the accelerometer (and the wheels). The
 filters take turns in runs of ``CHUNK`` steps with the garbage collector paused; each
 filter's figure is the median step time, and a ratio is the median over the turns of the
 two filters' run medians, so load changes on the machine hit both sides alike.
@@ -42,35 +44,51 @@ def table5(kind: str, n: int, m: int) -> int:
     return 4 * n**3 + 4 * m**3 + 6 * m * m * n + 4 * n * n * m + 3 * n * n
 
 
-def samples(steps: int, seed: int = 3) -> list[tuple[float, float, tuple[float, float]]]:
-    """(g_Y, b_gyro, (a_X, a_Z)) per step of a robot swinging 20 deg at 0.8 Hz, 26 Hz."""
+PENDULUM_M = 0.12
+"""The wheels filter's pendulum length (its default), which the stream's travel obeys."""
+
+
+def samples(steps: int, seed: int = 3) -> list[tuple[float, float, tuple[float, float], float]]:
+    """(g_Y, b_gyro, (a_X, a_Z), x_wheel) per step of a robot swinging 20 deg at 0.8 Hz,
+    26 Hz; the wheels' travel x_wheel (m) from the pendulum the wheels filter models."""
     rng = np.random.default_rng(seed)
     dt, w, amp, g, b = 1.0 / 26.0, 2.0 * math.pi * 0.8, math.radians(20.0), 9.81, 0.01
     out = []
+    p = v = 0.0
     for k in range(steps):
         t = k * dt
-        th = amp * math.sin(w * t)
-        rate = amp * w * math.cos(w * t) + b + rng.normal(0.0, 0.005)
+        th, dth = amp * math.sin(w * t), amp * w * math.cos(w * t)
+        rate = dth + b + rng.normal(0.0, 0.005)
         acc = (g * math.sin(th) + rng.normal(0.0, 0.3), g * math.cos(th) + rng.normal(0.0, 0.3))
-        out.append((rate, b, acc))
+        out.append((rate, b, acc, p - PENDULUM_M * math.sin(th)))
+        a = g * math.tan(th) - PENDULUM_M * math.sin(th) * dth * dth
+        p, v = p + v * dt + 0.5 * a * dt * dt, v + a * dt
     return out
 
 
 def steppers() -> dict[str, Callable[[tuple], None]]:
-    """One step function per filter (split, EKF, UKF, bias), fresh filters."""
+    """One step function per filter (split, EKF, UKF, bias, wheels), fresh filters."""
     from hera.models.tilt.tilt import Tilt2D
+    from hera.models.tilt.wheels import WheelsFilter
     from hera.store import Sample
 
     dt = 1.0 / 26.0
     out = {}
-    for kind in ("split", "ekf", "ukf", "bias"):
-        model = Tilt2D(kind=kind, start="any")
+    for kind in ("split", "ekf", "ukf", "bias", "wheels"):
+        model = Tilt2D(kind=kind, start="any", pendulum_m=PENDULUM_M)
         model.process(Sample("imu", "bench", 1, 0.0, 0.0, 0.0, (0.0, 9.81, 0.0, 0.01, 2.0)))
         f = model.filter
         assert f is not None
+        if isinstance(f, WheelsFilter):
+            f.wheels(0.0, True, 0.0)  # placed: the next readings correct
 
-        def step(s: tuple, f=f) -> None:
-            f.step(dt, s[0], s[1], s[2])
+            def step(s: tuple, f=f, gate=model.wheel_input.gate) -> None:  # type: ignore[union-attr]
+                f.step(dt, s[0], s[2])
+                f.wheels(s[3], True, 0.0, gate)
+        else:
+
+            def step(s: tuple, f=f) -> None:
+                f.step(dt, s[0], s[1], s[2])
 
         out[kind] = step
     return out
@@ -114,6 +132,7 @@ def measure(steps: int, warmup: int = 50) -> dict[str, object]:
         "ukf/ekf": ratio("ukf", "ekf"),
         "ekf/split": ratio("ekf", "split"),
         "bias/ekf": ratio("bias", "ekf"),
+        "wheels/bias": ratio("wheels", "bias"),
         "turns": len(turns),
     }
 
@@ -131,12 +150,15 @@ def format_report(res: dict, steps: int, backend: str) -> str:
         f"{'UKF (hera.estimation)':<28} {2:>2} {2:>2} {2:>2} {us['ukf']:>9.1f} {ukf:>10}",
         f"{'bias EKF (hera.estimation)':<28} {3:>2} {2:>2} {1:>2} {us['bias']:>9.1f} "
         f"{table5('EKF', 3, 2):>10}",
+        f"{'wheels EKF (robot model)':<28} {4:>2} {'1+1':>2} {1:>2} {us['wheels']:>9.1f} {'-':>10}",
         "",
         f"UKF / EKF: measured {res['ukf/ekf']:.2f}x, counted (Table 5) {ukf / ekf:.2f}x",
         f"EKF / split: measured {res['ekf/split']:.2f}x (Table 8 on scalars: A = I, P H^T kept, "
         "no matrix library)",
         f"bias EKF / EKF: measured {res['bias/ekf']:.2f}x, counted "
         f"{table5('EKF', 3, 2) / ekf:.2f}x",
+        f"wheels EKF / bias EKF: measured {res['wheels/bias']:.2f}x (two corrections a step; "
+        "the robot's model in Python)",
         f"(ratios: median over {res['turns']} turns of {CHUNK} steps per filter)",
     ]
     return "\n".join(lines)

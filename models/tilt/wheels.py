@@ -184,12 +184,13 @@ class WheelsFilter(OnLibrary):
             self.anchored = self.balancing = True
             return True
 
-        def h(x: np.ndarray) -> np.ndarray:
-            t, bb, pp, uu = x
-            return np.array([pp - L * math.sin(t) - delta * (uu - L * math.cos(t) * (w + b - bb))])
-
+        # x = p - L sin theta - delta (u - L cos theta w), linearised at the prior (the EKF's
+        # correction), given as z - h(x) + H x = H x so the library takes its linear path.
+        x0 = self.f.x
+        h0 = float(x0[2]) - L * s - delta * (float(x0[3]) - L * c * w)
         Hm = np.array([[-L * c - delta * L * s * w, -delta * L * c, 1.0, -delta]])
-        obs = Observations().add("wheels", [x_wheel], h=h, jacobian=lambda _x: Hm, R=self.r_wheel)
+        z = x_wheel - h0 + float(Hm[0] @ x0)
+        obs = Observations().add("wheels", [z], H=Hm, R=self.r_wheel)
         return bool(self.f.update(obs, gate=gate).accepted)
 
     def output(self) -> list[float]:

@@ -196,7 +196,12 @@ def test_the_bench_prints_the_filters_next_to_table_5(capsys):
     assert bench.table5("EKF", 2, 2) == 156 and bench.table5("UKF", 2, 2) == 340
     assert bench.main(["--steps", "5", "--backend", "numpy"]) == 0
     out = capsys.readouterr().out
-    for row in ("split (seed Table 8)", "EKF (hera.estimation)", "UKF (hera.estimation)"):
+    for row in (
+        "split (seed Table 8)",
+        "EKF (hera.estimation)",
+        "UKF (hera.estimation)",
+        "wheels EKF (robot model)",
+    ):
         assert row in out
     assert "counted (Table 5) 2.18x" in out
     with pytest.raises(SystemExit) as refused:
