@@ -8,9 +8,9 @@ while the robot balances, its wheels cancel gravity's pull in the accelerometer 
 encoders: a balancing robot that leans keeps accelerating, so the wheels' travel tells the
 lean that the accelerometer cannot.
 
-The model (linearised nowhere; an inverted pendulum of effective length ``L`` on a cart, the
-cart's acceleration a_w = (g sin theta - L theta'') / cos theta): the point of the body at
-``L`` over the axle, p = x + L sin theta (x the axle's travel), moves with
+The model (an inverted pendulum of effective length ``L`` on a cart, the cart's acceleration
+a_w = (g sin theta - L theta'') / cos theta): the point of the body at ``L`` over the axle,
+p = x + L sin theta (x the axle's travel), moves with
 
     p'' = a_w + L cos theta theta'' - L sin theta theta'^2
         = g tan theta - L sin theta (tan theta theta'' + theta'^2)
@@ -18,8 +18,9 @@ cart's acceleration a_w = (g sin theta - L theta'') / cos theta): the point of t
 in which the theta'' term is of second order in theta and is left out. State
 [theta (rad), b_gyro (rad/s), p (m), u = p' (m/s)]; over a step of dt with the gyroscope's
 mean rate w = g_Y - b over it, theta moves by w dt (seed eq. 25a) and p, u by the
-acceleration at the interval's mid tilt. On the stand (the motors off) the axle is still:
-u = 0 and p follows theta.
+acceleration at the interval's mid tilt. While the robot does not balance (on its stand, or
+getting up or down) the model does not hold: u = 0, p follows theta, and the wheels are not
+used.
 
 A push is an impulse on the body: theta' steps while the axle's speed does not, so u steps
 by L cos theta times the rate's step. The model cannot tell a push from the balancing
@@ -30,7 +31,7 @@ unknown time within the step (variances j on u, j dt^2 / 3 on p, covariance j dt
 Measurements: the encoders' travel x_wheel at their own time t_e, before the step's time t
 by delta: x = p - L sin theta - delta (u - L cos theta w), R = ``sigma_wheel``^2; the
 accelerometer's tilt atan2(a_X, a_Z) = theta, R = (sigma_acc / |a|)^2 times the scale the
-caller gives, times ``r_balancing`` while the motors run and the wheels report (it then
+caller gives, times ``r_balancing`` while the robot balances and the wheels report (it then
 reads the robot's accelerations more than its tilt). Units: rad, rad/s, m, m/s, s.
 """
 
@@ -168,7 +169,8 @@ class WheelsFilter(OnLibrary):
         L = self.L
         if not self.anchored:
             # p = x_wheel + L sin theta + delta v and u = v + L cos theta w, the axle's own
-            # speed v not known (0 +/- UNKNOWN_SPEED): P = J S J^T over (theta, b, x_wheel, v).
+            # speed v not known (taken as 0 +/- UNKNOWN_SPEED): P = J S J^T over
+            # (theta, b, x_wheel, v).
             J = np.array(
                 [
                     [1.0, 0.0, 0.0, 0.0],

@@ -13,10 +13,10 @@ from hera.application import Application
 
 
 class WheelBoards(Application):
-    """Wheel encoders and motor state of the balancing robot (seed 003)."""
+    """Wheel encoders of the balancing robot and whether it balances (seed 003)."""
 
     name = "wheels"
-    title = "simulated wheel encoders of the balancing robot: its travel and motor state"
+    title = "simulated wheel encoders of the balancing robot: its travel, whether it balances"
     measures = ("wheel_encoder",)
 
     def check_world(self, world: Mapping[str, Any]) -> list[str]:

@@ -84,7 +84,8 @@ def open_wheels(ctx: MeasureContext, args: Mapping[str, Any]) -> Any:
 
 
 class WheelEncoder(BoardMeasure):
-    """The balancing robot's wheel encoders and motor state (see the module docstring)."""
+    """The balancing robot's wheel encoders and whether it balances (see the module
+    docstring)."""
 
     name = "wheel_encoder"
     period = 1.0 / 26.0
