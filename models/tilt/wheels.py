@@ -164,7 +164,7 @@ class WheelsFilter(OnLibrary):
             self.anchored = self.balancing = False
             return True
         th, b = float(self.f.x[0]), float(self.f.x[1])
-        w = (self.rate if self.rate is not None else b) - b
+        w = self._turn_rate(b)
         s, c = math.sin(th), math.cos(th)
         L = self.L
         if not self.anchored:
@@ -195,10 +195,14 @@ class WheelsFilter(OnLibrary):
         obs = Observations().add("wheels", [z], H=Hm, R=self.r_wheel)
         return bool(self.f.update(obs, gate=gate).accepted)
 
+    def _turn_rate(self, b: float) -> float:
+        """The body's turn rate (rad/s): the last gyroscope rate less the bias ``b``."""
+        return (self.rate if self.rate is not None else b) - b
+
     def output(self) -> list[float]:
         """[theta (rad), b_gyro (rad/s), the axle's speed (m/s)]: u less the body's turn."""
         th, b, _, v = (float(s) for s in self.f.x)
-        w = (self.rate if self.rate is not None else b) - b
+        w = self._turn_rate(b)
         return [th, b, v - self.L * math.cos(th) * w if self.anchored else 0.0]
 
     def lose_wheels(self) -> None:

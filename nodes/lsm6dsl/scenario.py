@@ -206,6 +206,10 @@ class Balancing(Scenario):
         """The axle's acceleration a_w (m/s^2, world x) at ``tau``: what :meth:`motion` adds
         to the board's."""
         th, _, ddth = self.theta(tau)
+        return self._a_w(tau, th, ddth)
+
+    def _a_w(self, tau: float, th: float, ddth: float) -> float:
+        """a_w (module docstring) at ``tau`` for the tilt ``th`` and its ``ddth`` there."""
         w = max(0.0, min(1.0, self._standing(tau)[0]))
         if w == 0.0:
             return 0.0
@@ -258,9 +262,8 @@ class Balancing(Scenario):
     # -- the motion -------------------------------------------------------------------------
     def motion(self, tau: float) -> Motion:
         th, dth, ddth = self.theta(tau)
-        w = max(0.0, min(1.0, self._standing(tau)[0]))
         s, c = math.sin(th), math.cos(th)
-        a_w = w * (G * s - (self.pendulum + self.wheel_radius) * ddth) / ((1 + self.reaction_k) * c)
+        a_w = self._a_w(tau, th, ddth)
         h = self.sensor
         return Motion(
             position=(h * s, 0.0, h * c),
